@@ -1,0 +1,1 @@
+"""Sensor models: functions of ground truth plus a seeded random generator."""

@@ -1,0 +1,273 @@
+"""One configuration for a run: frozen dataclasses built from `defaults.toml` plus user overrides.
+
+The dataclasses are the schema (names, types, valid ranges); `defaults.toml` holds every default
+value. A user's TOML file is merged over the defaults, unknown keys are rejected, and the fully
+resolved config is stored with each run (`Config.to_dict`, `Config.to_toml`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from testbed.errors import ConfigError
+
+TERRAINS = ("flat", "slope", "step", "rough")
+CONTACTS = ("compliant", "dart")
+GAITS = ("stand",)
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+def _finite_positive(name: str, *values: float) -> None:
+    for value in values:
+        _require(math.isfinite(value) and value > 0, f"{name} must be a positive finite number, got {value}")
+
+
+def _finite(name: str, *values: float) -> None:
+    for value in values:
+        _require(math.isfinite(value), f"{name} must be finite, got {value}")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    terrain: str
+    contact: str
+    gait: str
+    duration: float
+    seed: int
+    time_step: float
+    gravity: float
+
+    def __post_init__(self) -> None:
+        _require(self.terrain in TERRAINS, f"unknown terrain '{self.terrain}' (choose from {', '.join(TERRAINS)})")
+        _require(self.contact in CONTACTS, f"unknown contact model '{self.contact}' (choose from {', '.join(CONTACTS)})")
+        _require(self.gait in GAITS, f"unknown gait '{self.gait}' (choose from {', '.join(GAITS)})")
+        _finite_positive("run.duration", self.duration)
+        _require(self.duration <= 24 * 3600, f"run.duration {self.duration} s is longer than a day")
+        _require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
+        _finite_positive("run.time_step", self.time_step)
+        _require(self.time_step <= 0.01, f"run.time_step {self.time_step} s is too coarse for contact (max 0.01)")
+        _finite_positive("run.gravity", self.gravity)
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    body_mass: float
+    body_size: tuple[float, ...]
+    leg_base_angle_deg: tuple[float, ...]
+    leg_base_distance: tuple[float, ...]
+    coxa_mass: float
+    coxa_size: tuple[float, ...]
+    femur_length: float
+    femur_mass: float
+    femur_section: tuple[float, ...]
+    tibia_length: float
+    tibia_mass: float
+    tibia_radius: float
+    foot_radius: float
+    joint_lower_deg: tuple[float, ...]
+    joint_upper_deg: tuple[float, ...]
+    servo_torque_limit: float
+    servo_speed_limit: float
+    servo_gain: float
+    stance_radius: float
+    stance_height: float
+
+    def __post_init__(self) -> None:
+        _require(len(self.body_size) == 3, "robot.body_size needs 3 numbers")
+        _require(len(self.coxa_size) == 3, "robot.coxa_size needs 3 numbers")
+        _require(len(self.femur_section) == 2, "robot.femur_section needs 2 numbers")
+        _require(len(self.leg_base_angle_deg) == 6, "robot.leg_base_angle_deg needs 6 numbers (one per leg)")
+        _require(len(self.leg_base_distance) == 6, "robot.leg_base_distance needs 6 numbers (one per leg)")
+        _require(len(self.joint_lower_deg) == 3 and len(self.joint_upper_deg) == 3,
+                 "robot.joint_lower_deg and joint_upper_deg need 3 numbers (coxa, femur, tibia)")
+        _finite_positive("robot sizes and masses", self.body_mass, *self.body_size, self.coxa_mass, *self.coxa_size,
+                         self.femur_length, self.femur_mass, *self.femur_section, self.tibia_length,
+                         self.tibia_mass, self.tibia_radius, self.foot_radius, *self.leg_base_distance)
+        _finite_positive("robot servo limits", self.servo_torque_limit, self.servo_speed_limit, self.servo_gain)
+        _finite_positive("robot stance", self.stance_radius, self.stance_height)
+        _finite("robot.leg_base_angle_deg", *self.leg_base_angle_deg)
+        for lower, upper in zip(self.joint_lower_deg, self.joint_upper_deg):
+            _require(math.isfinite(lower) and math.isfinite(upper) and -180 <= lower < upper <= 180,
+                     f"robot joint limits must satisfy -180 <= lower < upper <= 180, got [{lower}, {upper}]")
+        _require(self.stance_height > self.foot_radius,
+                 "robot.stance_height must exceed robot.foot_radius")
+
+
+@dataclass(frozen=True)
+class TerrainConfig:
+    slope_deg: float
+    step_height: float
+    step_edge_x: float
+    rough_amplitude: float
+    rough_cell: float
+    extent: tuple[float, ...]
+    flat_start_radius: float
+
+    def __post_init__(self) -> None:
+        _require(math.isfinite(self.slope_deg) and abs(self.slope_deg) <= 45,
+                 f"terrain.slope_deg must lie in [-45, 45], got {self.slope_deg}")
+        _require(math.isfinite(self.step_height) and abs(self.step_height) <= 0.2,
+                 f"terrain.step_height must lie in [-0.2, 0.2] m, got {self.step_height}")
+        _finite("terrain.step_edge_x", self.step_edge_x)
+        _require(math.isfinite(self.rough_amplitude) and 0 <= self.rough_amplitude <= 0.1,
+                 f"terrain.rough_amplitude must lie in [0, 0.1] m, got {self.rough_amplitude}")
+        _require(math.isfinite(self.rough_cell) and 0.02 <= self.rough_cell <= 2.0,
+                 f"terrain.rough_cell must lie in [0.02, 2] m, got {self.rough_cell}")
+        _require(len(self.extent) == 4, "terrain.extent needs 4 numbers: x_min x_max y_min y_max")
+        _finite("terrain.extent", *self.extent)
+        x_min, x_max, y_min, y_max = self.extent
+        _require(x_min < 0 < x_max and y_min < 0 < y_max, "terrain.extent must contain the origin")
+        _require((x_max - x_min) * (y_max - y_min) / self.rough_cell**2 <= 20000,
+                 "terrain.extent / rough_cell gives more than 20000 blocks")
+        _require(math.isfinite(self.flat_start_radius) and self.flat_start_radius >= 0,
+                 f"terrain.flat_start_radius must be >= 0, got {self.flat_start_radius}")
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    friction: float
+    stiffness: float
+    exponent: float
+    damping: float
+    tangential_stiffness: float
+    tangential_damping: float
+
+    def __post_init__(self) -> None:
+        _require(math.isfinite(self.friction) and 0 <= self.friction <= 5,
+                 f"contact.friction must lie in [0, 5], got {self.friction}")
+        _finite_positive("contact.stiffness", self.stiffness)
+        _require(math.isfinite(self.exponent) and 1.0 <= self.exponent <= 2.0,
+                 f"contact.exponent must lie in [1, 2], got {self.exponent}")
+        _require(math.isfinite(self.damping) and self.damping >= 0, f"contact.damping must be >= 0, got {self.damping}")
+        _finite_positive("contact.tangential_stiffness", self.tangential_stiffness)
+        _require(math.isfinite(self.tangential_damping) and self.tangential_damping >= 0,
+                 f"contact.tangential_damping must be >= 0, got {self.tangential_damping}")
+
+
+@dataclass(frozen=True)
+class Config:
+    run: RunConfig
+    robot: RobotConfig
+    terrain: TerrainConfig
+    contact: ContactConfig
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self.to_dict())
+
+    def replace(self, **sections: dict[str, Any]) -> "Config":
+        """A copy with some keys of some sections changed: `cfg.replace(run={"terrain": "step"})`."""
+        return from_dict(_merge(self.to_dict(), sections))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value
+
+
+def _merge(base: dict[str, Any], override: dict[str, Any], path: str = "") -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in override.items():
+        where = f"{path}{key}"
+        if key not in base:
+            raise ConfigError(f"unknown config key '{where}'")
+        if isinstance(base[key], dict):
+            if not isinstance(value, dict):
+                raise ConfigError(f"config key '{where}' must be a table")
+            merged[key] = _merge(base[key], value, where + ".")
+        else:
+            merged[key] = value
+    return merged
+
+
+def _convert(value: Any, hint: Any, where: str) -> Any:
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, dict):
+            raise ConfigError(f"config key '{where}' must be a table")
+        return _build(hint, value, where + ".")
+    origin = typing.get_origin(hint)
+    if origin is tuple:
+        (item_hint, _ellipsis) = typing.get_args(hint)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"config key '{where}' must be a list")
+        return tuple(_convert(item, item_hint, f"{where}[{i}]") for i, item in enumerate(value))
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"config key '{where}' must be a number, got {value!r}")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key '{where}' must be an integer, got {value!r}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key '{where}' must be true or false, got {value!r}")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config key '{where}' must be a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {hint} at {where}")
+
+
+def _build(cls: type, data: dict[str, Any], path: str = "") -> Any:
+    hints = typing.get_type_hints(cls)
+    names = [field.name for field in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(f"unknown config key '{path}{unknown[0]}'")
+    missing = [name for name in names if name not in data]
+    if missing:
+        raise ConfigError(f"missing config key '{path}{missing[0]}'")
+    return cls(**{name: _convert(data[name], hints[name], path + name) for name in names})
+
+
+def default_dict() -> dict[str, Any]:
+    text = resources.files("testbed").joinpath("defaults.toml").read_text(encoding="utf-8")
+    return tomllib.loads(text)
+
+
+def from_dict(data: dict[str, Any]) -> Config:
+    return _build(Config, data)
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"cannot read config file {path}: {error}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"invalid TOML in {path}: {error}") from None
+
+
+def load(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Defaults, then the user's TOML file, then command-line overrides; validated."""
+    data = default_dict()
+    if path is not None:
+        data = _merge(data, read_toml(path))
+    if overrides:
+        data = _merge(data, overrides)
+    return from_dict(data)
