@@ -1,0 +1,143 @@
+"""`testbed` command line: run | export-urdf (more subcommands arrive with their issues).
+
+Bad input gives one line on stderr and exit code 2, with nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any, Sequence
+
+from testbed import config as config_module
+from testbed.errors import ConfigError, UserError
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse prints usage plus the error; we keep to one clear line and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UserError(f"{self.prog}: {message}")
+
+
+def _parse_assignment(text: str) -> dict[str, Any]:
+    """`section.key=value` (value in TOML syntax) -> nested override dict."""
+    if "=" not in text:
+        raise UserError(f"--set expects section.key=value, got '{text}'")
+    dotted, raw = text.split("=", 1)
+    keys = dotted.strip().split(".")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    nested: dict[str, Any] = value
+    for key in reversed(keys):
+        nested = {key: nested}
+    return nested
+
+
+def _deep_update(target: dict[str, Any], update: dict[str, Any]) -> None:
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(target.get(key), dict):
+            _deep_update(target[key], value)
+        else:
+            target[key] = value
+
+
+def _run_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    overrides: dict[str, Any] = {}
+    for assignment in args.set or []:
+        _deep_update(overrides, _parse_assignment(assignment))
+    run = {name: getattr(args, name) for name in ("terrain", "contact", "gait", "duration", "seed")
+           if getattr(args, name) is not None}
+    if run:
+        _deep_update(overrides, {"run": run})
+    return overrides
+
+
+def _add_run_parser(subparsers) -> None:
+    parser = subparsers.add_parser("run", help="simulate one scenario")
+    parser.add_argument("--terrain", help="flat | slope | step | rough")
+    parser.add_argument("--contact", help="compliant (hard finger) | dart (DART rigid contact)")
+    parser.add_argument("--gait", help="stand")
+    parser.add_argument("--duration", type=float, help="simulated seconds")
+    parser.add_argument("--seed", type=int, help="seed of every random number of the run")
+    parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
+    parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                        help="override one config value, e.g. terrain.slope_deg=-10 (repeatable)")
+    parser.add_argument("--metrics", type=Path, help="write the run's metrics as JSON here")
+    parser.set_defaults(handler=_cmd_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from testbed.metrics import write_metrics
+    from testbed.runner import run
+
+    cfg = config_module.load(args.config, _run_overrides(args))
+    if args.metrics is not None and args.metrics.is_dir():
+        raise UserError(f"--metrics {args.metrics} is a directory")
+    outcome = run(cfg)
+    if args.metrics is not None:
+        write_metrics(args.metrics, outcome.metrics)
+    m = outcome.metrics
+    print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
+          f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
+          f"weight support {m['weight_support_ratio'] if m['weight_support_ratio'] is None else round(m['weight_support_ratio'], 4)}")
+    if outcome.interrupted:
+        print(f"testbed: {outcome.error}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if outcome.error:
+        print(f"testbed: {outcome.error}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+def _add_export_parser(subparsers) -> None:
+    parser = subparsers.add_parser("export-urdf", help="write the robot's URDF")
+    parser.add_argument("out", type=Path, help="output .urdf file")
+    parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
+    parser.set_defaults(handler=_cmd_export_urdf)
+
+
+def _cmd_export_urdf(args: argparse.Namespace) -> int:
+    from testbed.robot import build_urdf
+
+    cfg = config_module.load(args.config)
+    if args.out.is_dir():
+        raise UserError(f"{args.out} is a directory")
+    if not args.out.parent.exists():
+        raise UserError(f"folder {args.out.parent} does not exist")
+    args.out.write_text(build_urdf(cfg.robot), encoding="utf-8")
+    print(f"wrote {args.out}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="testbed", description="Hexapod control and sensor-fusion testbed")
+    subparsers = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    _add_run_parser(subparsers)
+    _add_export_parser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return args.handler(args)
+    except ConfigError as error:
+        print(f"testbed: config error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except UserError as error:
+        print(f"testbed: {error}" if not str(error).startswith("testbed") else str(error), file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("testbed: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

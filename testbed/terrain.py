@@ -1,0 +1,197 @@
+"""Terrains: flat, slope, step and rough ground.
+
+Every terrain is a union of boxes (dartpy has no height-field binding and cannot build meshes from
+arrays), and also answers analytic height h(x, y) and normal n(x, y) queries, which the tests check
+against the DART shapes. The compliant contact uses `closest`, the signed distance from points to
+the union of boxes with the surface normal there, so a foot meeting the riser of a step is pushed
+back by the riser rather than lifted vertically onto the top.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from testbed.config import TerrainConfig
+from testbed.errors import ConfigError
+
+BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
+TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """N oriented boxes: centres (N, 3), half extents (N, 3), rotations world_from_box (N, 3, 3)."""
+    centers: np.ndarray
+    half_extents: np.ndarray
+    rotations: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+
+def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, bottom: float) -> Boxes:
+    """Boxes spanning [x0, x1] x [y0, y1] arrays with the given top heights and a common bottom."""
+    x0, x1, y0, y1, tops = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (x0, x1, y0, y1, tops))
+    centers = np.column_stack([(x0 + x1) / 2, (y0 + y1) / 2, (tops + bottom) / 2])
+    half = np.column_stack([(x1 - x0) / 2, (y1 - y0) / 2, (tops - bottom) / 2])
+    return Boxes(centers, half, np.broadcast_to(np.eye(3), (len(centers), 3, 3)).copy())
+
+
+def signed_distance_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (N,) from each point to the union of its candidate boxes (N, K indices) and the
+    outward unit normal (N, 3) of the nearest surface. Negative distance means inside."""
+    centers = boxes.centers[candidates]                   # (N, K, 3)
+    rotations = boxes.rotations[candidates]               # (N, K, 3, 3)
+    half = boxes.half_extents[candidates]
+    local = np.einsum("nkji,nkj->nki", rotations, points[:, None, :] - centers)
+    excess = np.abs(local) - half
+    outside = np.maximum(excess, 0.0)
+    outside_norm = np.linalg.norm(outside, axis=2)
+    deepest = excess.max(axis=2)
+    distance = outside_norm + np.minimum(deepest, 0.0)
+    best = np.argmin(distance, axis=1)
+    rows = np.arange(len(points))
+    excess_b, local_b, outside_b = excess[rows, best], local[rows, best], outside[rows, best]
+    is_outside = outside_norm[rows, best] > 1e-12
+    normal_local = np.where(is_outside[:, None], outside_b * np.sign(local_b)
+                            / np.maximum(outside_norm[rows, best], 1e-12)[:, None], 0.0)
+    face = np.argmax(excess_b, axis=1)
+    inside_rows = rows[~is_outside]
+    normal_local[inside_rows, face[~is_outside]] = np.sign(local_b[inside_rows, face[~is_outside]]) + (
+        local_b[inside_rows, face[~is_outside]] == 0)
+    normal = np.einsum("nij,nj->ni", rotations[rows, best], normal_local)
+    return distance[rows, best], normal
+
+
+class Terrain:
+    """Base class: a union of boxes with analytic height and normal."""
+
+    name = "terrain"
+
+    def __init__(self, config: TerrainConfig, boxes: Boxes):
+        self.config = config
+        self.boxes = boxes
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def normal(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.atleast_2d(xy)
+        return np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+
+    def candidates(self, points: np.ndarray) -> np.ndarray:
+        """(N, K) indices of the boxes that may hold the surface nearest each point."""
+        return np.broadcast_to(np.arange(len(self.boxes)), (len(points), len(self.boxes)))
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        return signed_distance_to_boxes(points, self.boxes, self.candidates(points))
+
+
+class FlatTerrain(Terrain):
+    name = "flat"
+
+    def __init__(self, config: TerrainConfig):
+        x0, x1, y0, y1 = config.extent
+        super().__init__(config, _axis_aligned(x0, x1, y0, y1, np.zeros(1), -BASE_DEPTH))
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        return np.zeros(len(np.atleast_2d(xy)))
+
+
+class SlopeTerrain(Terrain):
+    """An inclined plane through the origin, z = x tan(slope): uphill along +x for a positive slope."""
+
+    name = "slope"
+
+    def __init__(self, config: TerrainConfig):
+        self.angle = np.radians(config.slope_deg)
+        x0, x1, y0, y1 = config.extent
+        c, s = np.cos(self.angle), np.sin(self.angle)
+        rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # R_y(-angle): z onto the normal
+        x_mid, y_mid = (x0 + x1) / 2, (y0 + y1) / 2
+        half = np.array([(x1 - x0) / (2 * c), (y1 - y0) / 2, BASE_DEPTH / 2])
+        top_mid = np.array([x_mid, y_mid, x_mid * np.tan(self.angle)])
+        center = top_mid - half[2] * rotation[:, 2]
+        super().__init__(config, Boxes(center[None], half[None], rotation[None]))
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        return np.atleast_2d(xy)[:, 0] * np.tan(self.angle)
+
+    def normal(self, xy: np.ndarray) -> np.ndarray:
+        n = np.array([-np.sin(self.angle), 0.0, np.cos(self.angle)])
+        return np.tile(n, (len(np.atleast_2d(xy)), 1))
+
+
+class StepTerrain(Terrain):
+    """The paper's Figure 8: level ground at z = 0 up to x = step_edge_x, then z = step_height."""
+
+    name = "step"
+
+    def __init__(self, config: TerrainConfig):
+        x0, x1, y0, y1 = config.extent
+        edge, rise = config.step_edge_x, config.step_height
+        _require_inside(edge, x0, x1)
+        bottom = min(0.0, rise) - BASE_DEPTH
+        boxes = _axis_aligned([x0, edge], [edge, x1], [y0, y0], [y1, y1], np.array([0.0, rise]), bottom)
+        super().__init__(config, boxes)
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.atleast_2d(xy)
+        return np.where(xy[:, 0] < self.config.step_edge_x, 0.0, self.config.step_height)
+
+
+class RoughTerrain(Terrain):
+    """Square blocks of side rough_cell with top heights uniform in +-rough_amplitude."""
+
+    name = "rough"
+
+    def __init__(self, config: TerrainConfig, rng: np.random.Generator):
+        x0, x1, y0, y1 = config.extent
+        cell = config.rough_cell
+        self.nx, self.ny = int(np.ceil((x1 - x0) / cell)), int(np.ceil((y1 - y0) / cell))
+        tops = rng.uniform(-config.rough_amplitude, config.rough_amplitude, (self.nx, self.ny))
+        xs, ys = x0 + cell * np.arange(self.nx), y0 + cell * np.arange(self.ny)
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        near_start = np.hypot(gx + cell / 2, gy + cell / 2) < config.flat_start_radius
+        tops[near_start] = 0.0
+        self.tops = tops
+        bottom = -config.rough_amplitude - BASE_DEPTH
+        boxes = _axis_aligned(gx.ravel(), gx.ravel() + cell, gy.ravel(), gy.ravel() + cell, tops.ravel(), bottom)
+        super().__init__(config, boxes)
+
+    def _cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x0, _, y0, _ = self.config.extent
+        ix = np.clip(np.floor((xy[:, 0] - x0) / self.config.rough_cell).astype(int), 0, self.nx - 1)
+        iy = np.clip(np.floor((xy[:, 1] - y0) / self.config.rough_cell).astype(int), 0, self.ny - 1)
+        return ix, iy
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        ix, iy = self._cell(np.atleast_2d(xy))
+        return self.tops[ix, iy]
+
+    def candidates(self, points: np.ndarray) -> np.ndarray:
+        ix, iy = self._cell(points[:, :2])
+        offsets = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
+        cx = np.clip(ix[:, None] + offsets[:, 0], 0, self.nx - 1)
+        cy = np.clip(iy[:, None] + offsets[:, 1], 0, self.ny - 1)
+        return cx * self.ny + cy
+
+
+def _require_inside(value: float, low: float, high: float) -> None:
+    if not low < value < high:
+        raise ConfigError(f"terrain.step_edge_x {value} must lie inside the terrain extent ({low}, {high})")
+
+
+def make_terrain(name: str, config: TerrainConfig, rng: np.random.Generator) -> Terrain:
+    if name == "flat":
+        return FlatTerrain(config)
+    if name == "slope":
+        return SlopeTerrain(config)
+    if name == "step":
+        return StepTerrain(config)
+    if name == "rough":
+        return RoughTerrain(config, rng)
+    raise ConfigError(f"unknown terrain '{name}'")
