@@ -118,22 +118,35 @@ def inverse_kinematics(geom: LegGeometry, leg: int, target: np.ndarray, elbow: E
     c0, s0 = np.cos(geom.base_angle[leg]), np.sin(geom.base_angle[leg])
     rel = target - np.array([geom.base_distance[leg] * c0, geom.base_distance[leg] * s0, 0.0])
     x0, y0, z0 = c0 * rel[0] + s0 * rel[1], -s0 * rel[0] + c0 * rel[1], rel[2]
-    reach = np.hypot(x0, y0)
-    th1 = np.arctan2(y0, x0) if reach > 1e-12 else 0.0
     a2, a3 = geom.femur, geom.tibia
-    cos3 = (reach**2 + z0**2 - a2**2 - a3**2) / (2.0 * a2 * a3)
+    horizontal = np.hypot(x0, y0)
+    cos3 = (horizontal**2 + z0**2 - a2**2 - a3**2) / (2.0 * a2 * a3)
     if not -1.0 <= cos3 <= 1.0:
-        distance = np.hypot(reach, z0)
+        distance = np.hypot(horizontal, z0)
         raise UnreachableTarget(leg, target, f"distance {distance:.4f} m outside [{abs(a2 - a3):.4f}, {a2 + a3:.4f}]")
     th3 = -np.arccos(cos3) if elbow == "up" else np.arccos(cos3)
-    th2 = np.arctan2(z0, reach) - np.arctan2(a3 * np.sin(th3), a2 + a3 * np.cos(th3))
-    q = np.array([th1, th2, th3])
+    heading = np.arctan2(y0, x0) if horizontal > 1e-12 else 0.0
+    # Two shoulder branches: the leg reaching towards the foot, or turned half a turn and reaching
+    # back over the hip. The first within the joint limits wins.
+    candidates = [_leg_angles(heading, horizontal, z0, th3, a2, a3),
+                  _leg_angles(_wrap(heading + np.pi), -horizontal, z0, th3, a2, a3)]
+    for q in candidates:
+        if np.all((q >= geom.lower - 1e-12) & (q <= geom.upper + 1e-12)):
+            return q
+    q = candidates[0]
     outside = (q < geom.lower - 1e-12) | (q > geom.upper + 1e-12)
-    if outside.any():
-        joint = int(np.argmax(outside))
-        raise UnreachableTarget(leg, target, f"joint {joint + 1} angle {np.degrees(q[joint]):.1f} deg outside "
-                                             f"[{np.degrees(geom.lower[joint]):.1f}, {np.degrees(geom.upper[joint]):.1f}]")
-    return q
+    joint = int(np.argmax(outside))
+    raise UnreachableTarget(leg, target, f"joint {joint + 1} angle {np.degrees(q[joint]):.1f} deg outside "
+                                         f"[{np.degrees(geom.lower[joint]):.1f}, {np.degrees(geom.upper[joint]):.1f}]")
+
+
+def _leg_angles(th1: float, reach: float, z0: float, th3: float, a2: float, a3: float) -> np.ndarray:
+    th2 = np.arctan2(z0, reach) - np.arctan2(a3 * np.sin(th3), a2 + a3 * np.cos(th3))
+    return np.array([th1, _wrap(th2), th3])
+
+
+def _wrap(angle: float) -> float:
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:

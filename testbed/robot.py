@@ -58,13 +58,13 @@ def total_mass(robot: RobotConfig) -> float:
 
 
 def _vec(values) -> str:
-    return " ".join(f"{float(v):.9g}" for v in values)
+    return " ".join(repr(float(v)) for v in values)   # shortest exact decimal: FK agrees to 1e-15
 
 
 def _inertial(inertia: Inertia) -> str:
     ixx, iyy, izz = inertia.diagonal
-    return (f'<inertial><origin xyz="{_vec(inertia.com)}" rpy="0 0 0"/><mass value="{inertia.mass:.9g}"/>'
-            f'<inertia ixx="{ixx:.9g}" ixy="0" ixz="0" iyy="{iyy:.9g}" iyz="0" izz="{izz:.9g}"/></inertial>')
+    return (f'<inertial><origin xyz="{_vec(inertia.com)}" rpy="0 0 0"/><mass value="{inertia.mass:.17g}"/>'
+            f'<inertia ixx="{ixx:.17g}" ixy="0" ixz="0" iyy="{iyy:.17g}" iyz="0" izz="{izz:.17g}"/></inertial>')
 
 
 def _geometry_block(tag: str, geometry: str, xyz=(0, 0, 0), rpy=(0, 0, 0), material: str = "") -> str:
@@ -78,8 +78,8 @@ def _link(name: str, inertia: Inertia, visuals: list[str], collisions: list[str]
 def _joint(name: str, parent: str, child: str, xyz, rpy, lower: float, upper: float, robot: RobotConfig) -> str:
     return (f'  <joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
             f'<origin xyz="{_vec(xyz)}" rpy="{_vec(rpy)}"/><axis xyz="0 0 1"/>'
-            f'<limit lower="{lower:.9g}" upper="{upper:.9g}" effort="{robot.servo_torque_limit:.9g}" '
-            f'velocity="{robot.servo_speed_limit:.9g}"/></joint>')
+            f'<limit lower="{lower:.17g}" upper="{upper:.17g}" effort="{robot.servo_torque_limit:.17g}" '
+            f'velocity="{robot.servo_speed_limit:.17g}"/></joint>')
 
 
 def _leg(leg: int, robot: RobotConfig, geom: LegGeometry, inertias: dict[str, Inertia]) -> list[str]:
@@ -89,8 +89,8 @@ def _leg(leg: int, robot: RobotConfig, geom: LegGeometry, inertias: dict[str, In
     grey = '<material name="grey"><color rgba="0.45 0.45 0.5 1"/></material>'
     dark = '<material name="dark"><color rgba="0.15 0.15 0.18 1"/></material>'
     femur_box = (robot.femur_length, robot.femur_section[1], robot.femur_section[0])
-    tibia_geometry = f'<cylinder radius="{robot.tibia_radius:.9g}" length="{robot.tibia_length:.9g}"/>'
-    foot_geometry = f'<sphere radius="{robot.foot_radius:.9g}"/>'
+    tibia_geometry = f'<cylinder radius="{robot.tibia_radius:.17g}" length="{robot.tibia_length:.17g}"/>'
+    foot_geometry = f'<sphere radius="{robot.foot_radius:.17g}"/>'
     foot_xyz = (robot.tibia_length, 0.0, 0.0)
     return [
         _link(coxa, inertias["coxa"], [_geometry_block("visual", f'<box size="{_vec(robot.coxa_size)}"/>',

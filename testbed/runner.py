@@ -62,4 +62,5 @@ def run(config: Config) -> RunOutcome:
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
     wall = time.perf_counter() - start
     outcome.metrics = metrics.summary(sim_time=sim.time, wall_s=wall, sim_steps=int(round(sim.time / config.run.time_step)))
+    outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
     return outcome

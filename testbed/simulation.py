@@ -77,6 +77,8 @@ class Simulation:
         self._acceleration = np.zeros(3)
         self._angular_acceleration = np.zeros(3)
         self._contacts = FootContacts.none()
+        self.cone_corrections = 0          # DART contact forces projected back onto the cone
+        self.worst_cone_ratio = 1.0        # worst |F_t| / (mu F_n) that DART reported
 
     # ----------------------------------------------------------------- set-up
     def _setup_servos(self) -> None:
@@ -109,9 +111,7 @@ class Simulation:
         ground = float(self.terrain.height(np.zeros((1, 2)))[0])
         body_z = ground + robot.stance_height
         feet = nominal_stance(self.geometry, robot.stance_radius, robot.stance_height, robot.foot_radius)
-        xy = feet[:, :2]
-        normal_z = self.terrain.normal(xy)[:, 2]
-        world_z = self.terrain.height(xy) + robot.foot_radius / normal_z + INITIAL_CLEARANCE
+        world_z = self._ground_clearing_height(feet[:, :2], robot.foot_radius) + INITIAL_CLEARANCE
         feet[:, 2] = world_z - body_z
         q = inverse_kinematics_all(self.geometry, feet)
         positions = np.zeros(self.robot.getNumDofs())
@@ -120,6 +120,16 @@ class Simulation:
         self.robot.setPositions(positions)
         self.robot.setVelocities(np.zeros_like(positions))
         return q
+
+    def _ground_clearing_height(self, xy: np.ndarray, radius: float) -> np.ndarray:
+        """Height of foot-sphere centres above `xy` that clear the ground under the whole sphere
+        (on rough ground a neighbouring block may stand higher than the one under the centre)."""
+        angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+        ring = np.column_stack([np.cos(angles), np.sin(angles)]) * radius
+        stencil = np.concatenate([np.zeros((1, 2)), ring])
+        points = (xy[:, None, :] + stencil[None]).reshape(-1, 2)
+        highest = self.terrain.height(points).reshape(len(xy), -1).max(axis=1)
+        return highest + radius / self.terrain.normal(xy)[:, 2]
 
     # ----------------------------------------------------------------- stepping
     @property
@@ -190,7 +200,23 @@ class Simulation:
         normals[touching] /= np.linalg.norm(normals[touching], axis=1)[:, None]
         points[touching] /= counts[touching][:, None]
         normal_forces = np.maximum(np.einsum("ij,ij->i", forces, normals), 0.0)
+        forces = self._verify_friction_cone(forces, normals, normal_forces, touching)
         return FootContacts(forces, normal_forces, normals, points, touching)
+
+    def _verify_friction_cone(self, forces, normals, normal_forces, touching) -> np.ndarray:
+        """DART's reported contact forces overshoot the friction cone in touch-down transients
+        (seen up to 1.2 mu F_n) although its LCP bounds each friction direction correctly while
+        sliding. Report them projected onto the cone, and count every projection."""
+        tangential = forces - normal_forces[:, None] * normals
+        magnitude = np.linalg.norm(tangential, axis=1)
+        limit = self.config.contact.friction * normal_forces
+        over = touching & (magnitude > limit * (1 + 1e-9) + 1e-9)
+        if not over.any():
+            return forces
+        self.cone_corrections += int(over.sum())
+        self.worst_cone_ratio = max(self.worst_cone_ratio, float(np.max(magnitude[over] / np.maximum(limit[over], 1e-12))))
+        scale = np.where(over, limit / np.maximum(magnitude, 1e-12), 1.0)
+        return normal_forces[:, None] * normals + tangential * scale[:, None]
 
     def _update_accelerations(self) -> None:
         # Finite differences of the body velocity over the step: DART's own accelerations miss the

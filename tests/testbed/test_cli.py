@@ -1,0 +1,66 @@
+"""`testbed run` and `testbed export-urdf`: metrics keys, URDF, and bad input (exit 2, one line)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import dartpy as dart
+import pytest
+
+from testbed.cli import main
+
+TESTBED = [sys.executable, "-m", "testbed.cli"]
+
+
+def test_run_writes_the_foundation_metrics(tmp_path, capsys):
+    metrics = tmp_path / "m.json"
+    assert main(["run", "--terrain", "flat", "--duration", "1.5", "--metrics", str(metrics)]) == 0
+    data = json.loads(metrics.read_text())
+    for key in ("fell", "weight_support_ratio", "realtime_factor", "sim_steps", "wall_s"):
+        assert key in data
+    assert data["fell"] is False and data["sim_steps"] == 1500
+    assert data["weight_support_ratio"] == pytest.approx(1.0, abs=0.01)
+    assert "fell=False" in capsys.readouterr().out
+
+
+def test_export_urdf_loads_as_19_bodies_and_18_revolute_joints(tmp_path):
+    out = tmp_path / "hexapod.urdf"
+    assert main(["export-urdf", str(out)]) == 0
+    loader = dart.utils.DartLoader()
+    skeleton = loader.parseSkeletonString(out.read_text(), "file:///tmp/")
+    revolute = sum(skeleton.getJoint(i).getType() == "RevoluteJoint" for i in range(skeleton.getNumJoints()))
+    assert skeleton.getNumBodyNodes() == 19 and revolute == 18
+
+
+@pytest.mark.parametrize("arguments", [
+    ["run", "--terrain", "moon"],
+    ["run", "--contact", "glue"],
+    ["run", "--duration", "0"],
+    ["run", "--duration", "-1"],
+    ["run", "--duration", "nan"],
+    ["run", "--duration", "soon"],
+    ["run", "--seed", "-4"],
+    ["run", "--config", "/nonexistent.toml"],
+    ["run", "--set", "terrain.slope_deg=90"],
+    ["run", "--set", "robot.wings=2"],
+    ["run", "--set", "nonsense"],
+    ["launch"],
+])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, arguments):
+    metrics = tmp_path / "m.json"
+    assert main(arguments + ["--metrics", str(metrics)] if arguments[0] == "run" else arguments) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not metrics.exists()
+
+
+def test_invalid_toml_file_from_a_real_process(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[run]\nduration = \n")
+    metrics = tmp_path / "m.json"
+    result = subprocess.run(TESTBED + ["run", "--config", str(bad), "--metrics", str(metrics)],
+                            capture_output=True, text=True, cwd=Path(__file__).parents[2])
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and "invalid TOML" in result.stderr
+    assert not metrics.exists()

@@ -1,0 +1,103 @@
+"""Physics of both contact models: weight carried, friction holds below atan(mu) and not above,
+every contact force inside its friction cone, and determinism."""
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from testbed import config
+from testbed.runner import build_simulation
+
+CONTACTS = ["compliant", "dart"]
+
+
+@lru_cache(maxsize=None)
+def stand(terrain: str, contact: str, duration: float, friction: float | None = None, seed: int = 1):
+    """Stand still; return times, body positions, per-foot forces/normals/contact, and the mass."""
+    overrides = {"run": {"terrain": terrain, "contact": contact, "seed": seed}}
+    if friction is not None:
+        overrides["contact"] = {"friction": friction}
+    cfg = config.load(overrides=overrides)
+    sim = build_simulation(cfg)
+    steps = int(round(duration / cfg.run.time_step))
+    times, bodies, forces, normals, touching = [], [], [], [], []
+    for _ in range(steps):
+        sim.step(sim.standing_targets)
+        contacts = sim.contacts()
+        times.append(sim.time)
+        bodies.append(sim.body_transform()[:3, 3].copy())
+        forces.append(contacts.forces.copy())
+        normals.append(contacts.normals.copy())
+        touching.append(contacts.in_contact.copy())
+    return (np.array(times), np.array(bodies), np.array(forces), np.array(normals), np.array(touching),
+            sim.mass * cfg.run.gravity, cfg.contact.friction, sim)
+
+
+def normal_and_tangential(forces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    normal = np.einsum("...i,...i->...", forces, normals)
+    tangential = np.linalg.norm(forces - normal[..., None] * normals, axis=-1)
+    return normal, tangential
+
+
+@pytest.mark.parametrize("contact", CONTACTS)
+def test_feet_carry_the_weight_on_flat_ground(contact):
+    times, _, forces, normals, _, weight, _, _ = stand("flat", contact, 3.0)
+    normal, _ = normal_and_tangential(forces, normals)
+    last_second = times > 2.0 + 1e-9
+    ratio = normal[last_second].sum(axis=1).mean() / weight
+    assert ratio == pytest.approx(1.0, abs=0.01)
+    # and no foot pulls: a contact only pushes
+    assert normal.min() >= 0.0
+
+
+@pytest.mark.parametrize("contact", CONTACTS)
+def test_no_sliding_on_slope_below_friction_angle(contact):
+    # 10 degree slope, mu = 0.8: atan(mu) = 38.7 degrees.
+    times, bodies, _, _, _, _, _, _ = stand("slope", contact, 2.5)
+    settled = np.searchsorted(times, 0.5)
+    drift = np.linalg.norm(bodies[settled:, :2] - bodies[settled, :2], axis=1).max()
+    assert drift < 1e-3
+
+
+@pytest.mark.parametrize("contact", CONTACTS)
+def test_slides_on_slope_above_friction_angle(contact):
+    # mu = 0.1: atan(mu) = 5.7 degrees < 10 degrees; the robot must slide downhill (-x).
+    times, bodies, _, _, _, _, _, _ = stand("slope", contact, 2.5, friction=0.1)
+    settled = np.searchsorted(times, 0.5)
+    assert bodies[-1, 0] - bodies[settled, 0] < -0.05
+
+
+@pytest.mark.parametrize("contact", CONTACTS)
+@pytest.mark.parametrize("case", [("slope", 2.5, None), ("slope", 2.5, 0.1), ("rough", 3.0, None)])
+def test_every_contact_force_lies_inside_its_friction_cone(contact, case):
+    terrain, duration, friction = case
+    _, _, forces, normals, touching, _, mu, _ = stand(terrain, contact, duration, friction)
+    normal, tangential = normal_and_tangential(forces, normals)
+    assert touching.any()
+    assert np.all(tangential[touching] <= mu * normal[touching] * (1 + 1e-9) + 1e-9)
+    if friction is not None:   # sliding: the cone is reached, not just respected
+        assert np.max(tangential[touching] / np.maximum(normal[touching], 1e-9)) > 0.95 * mu
+
+
+@pytest.mark.parametrize("terrain", ["flat", "slope"])
+def test_dart_cone_projections_only_at_touch_down(terrain):
+    """DART's reported forces overshoot the cone while the feet first land; after that, none."""
+    cfg = config.load(overrides={"run": {"terrain": terrain, "contact": "dart", "seed": 1}})
+    sim = build_simulation(cfg)
+    last_correction = 0.0
+    for _ in range(2000):
+        before = sim.cone_corrections
+        sim.step(sim.standing_targets)
+        if sim.cone_corrections > before:
+            last_correction = sim.time
+    assert last_correction < 0.2
+
+
+@pytest.mark.parametrize("contact", CONTACTS)
+def test_same_seed_same_run(contact):
+    a = stand("rough", contact, 0.5, seed=11)
+    b = stand.__wrapped__("rough", contact, 0.5, seed=11)
+    c = stand("rough", contact, 0.5, seed=12)
+    assert np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+    assert not np.array_equal(a[1], c[1])

@@ -1,0 +1,78 @@
+"""Analytic terrain queries agree with the DART shapes that represent each terrain."""
+
+import dartpy as dart
+import numpy as np
+import pytest
+
+from testbed import config
+from testbed.errors import ConfigError
+from testbed.simulation import build_terrain_skeleton
+from testbed.terrain import make_terrain
+
+CFG = config.load()
+
+
+def dart_raycast_down(group, x: float, y: float) -> tuple[float, np.ndarray]:
+    result = dart.collision.RaycastResult()
+    assert group.raycast([x, y, 1.0], [x, y, -1.0], dart.collision.RaycastOption(), result)
+    hit = result.mRayHits[0]
+    return float(hit.mPoint[2]), np.asarray(hit.mNormal)
+
+
+@pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
+def test_height_and_normal_agree_with_dart_shapes(name):
+    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(3))
+    detector = dart.collision.BulletCollisionDetector()   # the detector with raycasts in DART
+    group = detector.createCollisionGroup()
+    skeleton = build_terrain_skeleton(terrain, 0.8)   # keep alive: the group does not own it
+    group.addShapeFramesOf(skeleton)
+    rng = np.random.default_rng(4)
+    cell = CFG.terrain.rough_cell
+    for x, y in rng.uniform([-1.5, -2.5], [5.5, 2.5], (40, 2)):
+        if name == "rough":   # stay off block edges, where the normal is not defined
+            x, y = (np.floor(np.array([x, y]) / cell) + 0.5) * cell
+        if name == "step" and abs(x - CFG.terrain.step_edge_x) < 0.01:
+            continue
+        z, normal = dart_raycast_down(group, x, y)
+        assert terrain.height(np.array([[x, y]]))[0] == pytest.approx(z, abs=1e-6)
+        assert np.allclose(terrain.normal(np.array([[x, y]]))[0], normal, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
+def test_closest_point_query_matches_height_above_surface(name):
+    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(5))
+    rng = np.random.default_rng(6)
+    cell = CFG.terrain.rough_cell
+    xy = (np.floor(rng.uniform([-1, -2], [5, 2], (30, 2)) / cell) + 0.5) * cell
+    xy = xy[np.abs(xy[:, 0] - CFG.terrain.step_edge_x) > 0.05]
+    normals = terrain.normal(xy)
+    for lift in (0.004, -0.002):
+        points = np.column_stack([xy, terrain.height(xy)]) + lift * normals
+        distance, normal = terrain.closest(points)
+        assert np.allclose(distance, lift, atol=1e-9)
+        assert np.allclose(normal, normals, atol=1e-9)
+
+
+def test_step_riser_pushes_sideways():
+    up_step = config.load(overrides={"terrain": {"step_height": 0.04}})
+    terrain = make_terrain("step", up_step.terrain, np.random.default_rng(0))
+    edge = CFG.terrain.step_edge_x
+    distance, normal = terrain.closest(np.array([[edge - 0.005, 0.0, 0.02]]))
+    assert distance[0] == pytest.approx(0.005)
+    assert np.allclose(normal[0], [-1.0, 0.0, 0.0])
+
+
+def test_rough_terrain_is_seeded_and_bounded():
+    a = make_terrain("rough", CFG.terrain, np.random.default_rng(7))
+    b = make_terrain("rough", CFG.terrain, np.random.default_rng(7))
+    c = make_terrain("rough", CFG.terrain, np.random.default_rng(8))
+    assert np.array_equal(a.tops, b.tops)
+    assert not np.array_equal(a.tops, c.tops)
+    assert np.abs(a.tops).max() <= CFG.terrain.rough_amplitude
+    assert a.tops.std() == pytest.approx(CFG.terrain.rough_amplitude / np.sqrt(3), rel=0.05)
+
+
+def test_step_edge_outside_extent_is_rejected():
+    bad = config.load(overrides={"terrain": {"step_edge_x": 100.0}})
+    with pytest.raises(ConfigError, match="step_edge_x"):
+        make_terrain("step", bad.terrain, np.random.default_rng(0))
