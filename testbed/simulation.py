@@ -154,23 +154,18 @@ class Simulation:
             self._contacts = self._read_dart_contacts()
         self._update_accelerations()
 
-    def _foot_states(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        centers = np.empty((6, 3))
-        velocities = np.empty((6, 3))
-        spins = np.empty((6, 3))
-        for leg, tibia in enumerate(self.tibias):
-            transform = tibia.getWorldTransform().matrix()
-            centers[leg] = transform[:3, :3] @ self.foot_offset + transform[:3, 3]
-            velocities[leg] = tibia.getLinearVelocity(self.foot_offset)
-            spins[leg] = tibia.getAngularVelocity()
-        return centers, velocities, spins
+    def _foot_states(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        transforms = np.array([tibia.getWorldTransform().matrix() for tibia in self.tibias])
+        centers = transforms[:, :3, :3] @ self.foot_offset + transforms[:, :3, 3]
+        velocities = np.array([tibia.getLinearVelocity(self.foot_offset) for tibia in self.tibias])
+        spins = np.array([tibia.getAngularVelocity() for tibia in self.tibias])
+        return transforms, centers, velocities, spins
 
     def _apply_compliant_contact(self) -> None:
-        centers, velocities, spins = self._foot_states()
+        transforms, centers, velocities, spins = self._foot_states()
         contacts = self.compliant.compute(centers, velocities, spins)
         for leg in np.flatnonzero(contacts.in_contact):
-            tibia = self.tibias[leg]
-            transform = tibia.getWorldTransform().matrix()
+            tibia, transform = self.tibias[leg], transforms[leg]
             offset = transform[:3, :3].T @ (contacts.points[leg] - transform[:3, 3])
             tibia.addExtForce(contacts.forces[leg], offset, False, True)
         self._contacts = contacts
@@ -239,8 +234,7 @@ class Simulation:
         transform = self.body_transform()
         positions = self.robot.getPositions()
         velocities = self.robot.getVelocities()
-        centers = np.array([t.getWorldTransform().matrix()[:3, :3] @ self.foot_offset
-                            + t.getWorldTransform().matrix()[:3, 3] for t in self.tibias])
+        _, centers, _, _ = self._foot_states()
         contacts = self._contacts
         return Truth(
             t=self.time,
