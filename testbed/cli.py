@@ -48,14 +48,31 @@ def _deep_update(target: dict[str, Any], update: dict[str, Any]) -> None:
             target[key] = value
 
 
+def _parse_target(text: str) -> list[float]:
+    try:
+        x, y = (float(part) for part in text.split(","))
+    except ValueError:
+        raise UserError(f"--target expects X,Y in metres, got '{text}'") from None
+    return [x, y]
+
+
 def _run_overrides(args: argparse.Namespace) -> dict[str, Any]:
     overrides: dict[str, Any] = {}
     for assignment in args.set or []:
         _deep_update(overrides, _parse_assignment(assignment))
-    run = {name: getattr(args, name) for name in ("terrain", "contact", "gait", "duration", "seed")
-           if getattr(args, name) is not None}
+    run = {name: getattr(args, name) for name in ("terrain", "contact", "gait", "estimator", "controller",
+                                                  "duration", "seed") if getattr(args, name) is not None}
+    gait = {name: getattr(args, name) for name in ("speed", "lateral_speed", "turn_rate")
+            if getattr(args, name) is not None}
+    if args.target is not None:
+        gait["target"] = _parse_target(args.target)
+        run.setdefault("gait", "tripod")
     if run:
         _deep_update(overrides, {"run": run})
+    if gait:
+        _deep_update(overrides, {"gait": gait})
+    if args.fault:
+        _deep_update(overrides, {"sensors": {"faults": list(args.fault)}})
     return overrides
 
 
@@ -63,7 +80,15 @@ def _add_run_parser(subparsers) -> None:
     parser = subparsers.add_parser("run", help="simulate one scenario")
     parser.add_argument("--terrain", help="flat | slope | step | rough")
     parser.add_argument("--contact", help="compliant (hard finger) | dart (DART rigid contact)")
-    parser.add_argument("--gait", help="stand")
+    parser.add_argument("--gait", help="stand | tripod | ripple | wave (default stand; tripod with --target)")
+    parser.add_argument("--speed", type=float, help="forward speed, m/s (cruise speed with --target)")
+    parser.add_argument("--lateral-speed", type=float, help="speed to the left, m/s")
+    parser.add_argument("--turn-rate", type=float, help="turning rate, rad/s counter-clockwise")
+    parser.add_argument("--target", help="X,Y: walk to this point of the ground (m) and stop")
+    parser.add_argument("--estimator", help="none | ekf | ukf | complementary | madgwick | mahony | vqf")
+    parser.add_argument("--controller", help="none")
+    parser.add_argument("--fault", action="append", metavar="SPEC",
+                        help="inject a sensor fault, e.g. imu.accel.spike@5s (see docs/sensors.md; repeatable)")
     parser.add_argument("--duration", type=float, help="simulated seconds")
     parser.add_argument("--seed", type=int, help="seed of every random number of the run")
     parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")

@@ -18,11 +18,15 @@ from typing import Any
 
 import tomli_w
 
+from estimators.config import EstimatorsConfig
+from sensors.config import SensorsConfig
 from testbed.errors import ConfigError
 
 TERRAINS = ("flat", "slope", "step", "rough")
 CONTACTS = ("compliant", "dart")
-GAITS = ("stand",)
+GAITS = ("stand", "tripod", "ripple", "wave")   # testbed.gait.GAIT_TABLE holds the walking ones
+ESTIMATORS = ("none", "ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")   # estimators.registry
+CONTROLLERS = ("none",)
 
 
 def _require(condition: bool, message: str) -> None:
@@ -45,6 +49,8 @@ class RunConfig:
     terrain: str
     contact: str
     gait: str
+    estimator: str
+    controller: str
     duration: float
     seed: int
     time_step: float
@@ -54,6 +60,10 @@ class RunConfig:
         _require(self.terrain in TERRAINS, f"unknown terrain '{self.terrain}' (choose from {', '.join(TERRAINS)})")
         _require(self.contact in CONTACTS, f"unknown contact model '{self.contact}' (choose from {', '.join(CONTACTS)})")
         _require(self.gait in GAITS, f"unknown gait '{self.gait}' (choose from {', '.join(GAITS)})")
+        _require(self.estimator in ESTIMATORS,
+                 f"unknown estimator '{self.estimator}' (choose from {', '.join(ESTIMATORS)})")
+        _require(self.controller in CONTROLLERS,
+                 f"unknown controller '{self.controller}' (choose from {', '.join(CONTROLLERS)})")
         _finite_positive("run.duration", self.duration)
         _require(self.duration <= 24 * 3600, f"run.duration {self.duration} s is longer than a day")
         _require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
@@ -158,11 +168,64 @@ class ContactConfig:
 
 
 @dataclass(frozen=True)
+class GaitConfig:
+    speed: float
+    lateral_speed: float
+    turn_rate: float
+    target: tuple[float, ...]
+    target_tolerance: float
+    cruise_turn_rate: float
+    heading_gain: float
+    swing_height: float
+    max_step_length: float
+    tripod_period: float
+    ripple_period: float
+    wave_period: float
+    still_time: float
+    start_ramp: float
+
+    def __post_init__(self) -> None:
+        _finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
+        _require(abs(self.speed) <= 0.5 and abs(self.lateral_speed) <= 0.5,
+                 f"gait speeds must lie within +-0.5 m/s, got {self.speed}, {self.lateral_speed}")
+        _require(abs(self.turn_rate) <= 2.0, f"gait.turn_rate must lie within +-2 rad/s, got {self.turn_rate}")
+        _require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
+        _finite("gait.target", *self.target)
+        _finite_positive("gait.target_tolerance", self.target_tolerance)
+        _finite_positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
+                         self.max_step_length, self.tripod_period, self.ripple_period, self.wave_period)
+        _require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")
+        _require(math.isfinite(self.still_time) and 0.05 <= self.still_time <= 10,
+                 f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
+
+    def period(self, gait: str) -> float:
+        return {"tripod": self.tripod_period, "ripple": self.ripple_period, "wave": self.wave_period}.get(gait, 1.0)
+
+
+@dataclass(frozen=True)
 class Config:
     run: RunConfig
     robot: RobotConfig
     terrain: TerrainConfig
     contact: ContactConfig
+    estimators: EstimatorsConfig
+    sensors: SensorsConfig
+    gait: GaitConfig
+
+    def __post_init__(self) -> None:
+        self._check_stride()
+
+    def _check_stride(self) -> None:
+        """A commanded speed whose stride does not fit the legs' workspace is a config error."""
+        from testbed.gait import GAIT_TABLE
+        if self.run.gait not in GAIT_TABLE:
+            return
+        duty = GAIT_TABLE[self.run.gait][0]
+        speed = max(math.hypot(self.gait.speed, self.gait.lateral_speed), self.gait.speed)
+        stride = speed * duty * self.gait.period(self.run.gait)
+        _require(stride <= self.gait.max_step_length + 1e-12,
+                 f"speed {speed:g} m/s needs a {stride * 100:.1f} cm stride with the {self.run.gait} gait, "
+                 f"more than gait.max_step_length {self.gait.max_step_length * 100:.1f} cm")
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))

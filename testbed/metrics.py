@@ -13,36 +13,97 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.contact import FootContacts
+from scipy.spatial.transform import Rotation
+
+from testbed.config import Config
+from testbed.recording import Tick
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
+SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
 
 
-class StandMetrics:
-    """fell, weight_support_ratio, realtime_factor, sim_steps, wall_s."""
+class RunMetrics:
+    """Accumulates the truth-side metrics of a run tick by tick; `summary` adds the estimator's."""
 
-    def __init__(self, weight: float, time_step: float, duration: float):
+    def __init__(self, config: Config, weight: float):
+        self.config = config
         self.weight = weight
-        self.window_start = duration - WEIGHT_WINDOW - 0.5 * time_step
+        self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
         self.fell = False
         self._normal_sum = 0.0
         self._normal_count = 0
+        self.min_margin = np.inf
+        self.start_xy: np.ndarray | None = None
+        self.start_heading = 0.0
+        self.last_xy = np.zeros(2)
+        self.truth_t: list[float] = []
+        self.truth_quaternion: list[np.ndarray] = []
+        self.feet: list[np.ndarray] = []
+        self.contact: list[np.ndarray] = []
+        self.body_position: list[np.ndarray] = []
+        self.estimates: list = []
 
-    def add_contacts(self, t: float, contacts: FootContacts) -> None:
-        if t >= self.window_start:
-            self._normal_sum += float(contacts.normal_forces.sum())
+    def add(self, tick: Tick) -> None:
+        truth = tick.truth
+        if self.start_xy is None:
+            self.start_xy = truth.body_position[:2].copy()
+            self.start_heading = float(np.arctan2(truth.body_rotation[1, 0], truth.body_rotation[0, 0]))
+        self.last_xy = truth.body_position[:2].copy()
+        if truth.t >= self.window_start:
+            self._normal_sum += float(tick.contacts.normal_forces.sum())
             self._normal_count += 1
+        if truth.t >= SETTLE_TIME:
+            self.min_margin = min(self.min_margin, tick.stability_margin)
+        self.truth_t.append(truth.t)
+        self.truth_quaternion.append(tick.truth_quaternion)
+        self.feet.append(truth.foot_positions)
+        self.contact.append(truth.foot_contact)
+        self.body_position.append(truth.body_position)
+        self.estimates.extend(tick.estimates)
 
-    def summary(self, sim_time: float, wall_s: float, sim_steps: int) -> dict:
+    def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
         ratio = self._normal_sum / self._normal_count / self.weight if self._normal_count else None
-        return {
+        displacement = self.last_xy - (self.start_xy if self.start_xy is not None else self.last_xy)
+        heading = np.array([np.cos(self.start_heading), np.sin(self.start_heading)])
+        target = self.config.gait.target
+        metrics = {
             "fell": self.fell,
             "weight_support_ratio": ratio,
+            "distance_m": float(np.linalg.norm(displacement)),
+            "mean_speed_mps": float(np.linalg.norm(displacement)) / sim_time if sim_time > 0 else None,
+            "lateral_drift_m": float(abs(heading[0] * displacement[1] - heading[1] * displacement[0])),
+            "target_error_m": float(np.linalg.norm(self.last_xy - target)) if target else None,
+            "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
+            "ik_limited_ticks": ik_limited_ticks,
             "realtime_factor": sim_time / wall_s if wall_s > 0 else None,
-            "sim_steps": sim_steps,
+            "sim_steps": int(round(sim_time / self.config.run.time_step)),
             "sim_time_s": sim_time,
             "wall_s": wall_s,
         }
+        metrics.update(self.estimator_metrics())
+        return metrics
+
+    def estimator_metrics(self) -> dict:
+        from estimators.scoring import METRIC_KEYS
+        empty = {key: None for key in METRIC_KEYS}
+        if self.config.run.estimator == "none" or not self.estimates or len(self.truth_t) < 2:
+            return empty
+        try:
+            return score_estimates(self.config, np.array(self.truth_t), np.array(self.truth_quaternion),
+                                   np.array(self.body_position), np.array(self.feet), np.array(self.contact),
+                                   self.estimates)
+        except ValueError:      # shorter than the skipped first second
+            return empty
+
+
+def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,
+                    feet: np.ndarray, contact: np.ndarray, estimates: list) -> dict:
+    """Estimator metrics of a run from recorded numbers: the one function live runs and replays
+    both call, so a replay of the same estimates scores bit for bit the same."""
+    from estimators.scoring import estimate_arrays, score, support_plane_truth
+    rotations = Rotation.from_quat(truth_quaternion).as_matrix()
+    terrain_truth = support_plane_truth(truth_t, feet, contact, body_position, rotations, config.robot.foot_radius)
+    return score(estimate_arrays(estimates), truth_t, rotations, terrain_truth)
 
 
 def _clean(value):

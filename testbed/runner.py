@@ -1,24 +1,30 @@
 """The run loop: one scenario from config to metrics.
 
-One tick per physics step: simulation, then (as later issues add them) sensors, estimator,
-controller, gait/IK, joint commands; the recorder sits beside it. Ground truth goes only to the
-metrics and the recorder.
+One tick per physics step, data flowing one way: simulation -> sensors -> pilot (estimator,
+odometry, gait, IK) -> joint commands for the next step. Ground truth goes only to the metrics
+and to the recorder beside the loop.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from sensors.suite import SensorSuite
 from testbed.config import Config
 from testbed.errors import SimulationDiverged
-from testbed.metrics import StandMetrics
+from testbed.kinematics import foot_positions
+from testbed.metrics import RunMetrics
+from testbed.pilot import Pilot
+from testbed.recording import NullRecorder, Recorder, Tick
 from testbed.simulation import Simulation
+from testbed.stability import stability_margin, support_polygon
 from testbed.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
+CONTACT_DEBOUNCE = 0.005  # s: a foot that touched the ground this recently still supports
 
 
 @dataclass
@@ -26,32 +32,59 @@ class RunOutcome:
     metrics: dict
     error: str | None = None        # set when the run stopped early (divergence, interrupt)
     interrupted: bool = False
-    extra: dict = field(default_factory=dict)
-
-
-def seed_sequence(config: Config) -> np.random.SeedSequence:
-    return np.random.SeedSequence(config.run.seed)
 
 
 def build_simulation(config: Config) -> Simulation:
-    streams = seed_sequence(config).spawn(TERRAIN_STREAM + 1)
+    streams = np.random.SeedSequence(config.run.seed).spawn(TERRAIN_STREAM + 1)
     terrain = make_terrain(config.run.terrain, config.terrain, np.random.default_rng(streams[TERRAIN_STREAM]))
     return Simulation(config, terrain)
 
 
-def run(config: Config) -> RunOutcome:
-    """Simulate `config` for its duration; returns the metrics even when stopped early."""
+class SupportTracker:
+    """The support polygon of the stance feet: the feet on the ground (a touch within
+    CONTACT_DEBOUNCE counts, so a rigid contact's one-step chatter is not a lift-off)."""
+
+    def __init__(self):
+        self.last_touch = np.full(6, -np.inf)
+
+    def polygon(self, truth) -> np.ndarray:
+        self.last_touch[truth.foot_contact] = truth.t
+        supporting = truth.t - self.last_touch <= CONTACT_DEBOUNCE
+        return support_polygon(truth.foot_positions[supporting, :2])
+
+
+def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
+    contacts = sim.contacts()
+    polygon = support.polygon(truth)
+    return Tick(truth=truth, truth_quaternion=sim.body_quaternion(),
+                contacts=contacts, support_polygon=polygon,
+                stability_margin=stability_margin(polygon, truth.com_position[:2]),
+                samples=samples, estimates=estimates, command=command)
+
+
+def run(config: Config, recorder: Recorder | None = None) -> RunOutcome:
+    """Simulate `config` for its duration; the metrics come back even when the run stops early."""
+    recorder = recorder or NullRecorder()
     sim = build_simulation(config)
+    sensors = SensorSuite.from_config(config)
+    pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
+    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity)
+    support = SupportTracker()
     steps = int(round(config.run.duration / config.run.time_step))
-    metrics = StandMetrics(weight=sim.mass * config.run.gravity, time_step=config.run.time_step,
-                           duration=config.run.duration)
-    targets = sim.standing_targets
     outcome = RunOutcome(metrics={})
+    recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
     try:
+        samples = sensors.update(sim.truth())
+        command, estimates = pilot.tick(sim.time, samples)
         for step in range(steps):
-            sim.step(targets)
-            metrics.add_contacts(sim.time, sim.contacts())
+            sim.step(command.joint_targets)
+            truth = sim.truth()
+            samples = sensors.update(truth)
+            command, estimates = pilot.tick(sim.time, samples)
+            tick = make_tick(sim, truth, samples, command, estimates, support)
+            metrics.add(tick)
+            recorder.record(tick)
             if sim.body_tilt() > np.radians(45.0) or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                 metrics.fell = True
                 break
@@ -61,6 +94,7 @@ def run(config: Config) -> RunOutcome:
         outcome.interrupted = True
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
     wall = time.perf_counter() - start
-    outcome.metrics = metrics.summary(sim_time=sim.time, wall_s=wall, sim_steps=int(round(sim.time / config.run.time_step)))
+    outcome.metrics = metrics.summary(sim.time, wall, pilot.ik_limited_ticks)
     outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
+    recorder.finish(outcome.metrics, outcome.error)
     return outcome

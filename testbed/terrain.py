@@ -39,30 +39,33 @@ def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, 
     return Boxes(centers, half, np.broadcast_to(np.eye(3), (len(centers), 3, 3)).copy())
 
 
-def signed_distance_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distance (N,) from each point to the union of its candidate boxes (N, K indices) and the
-    outward unit normal (N, 3) of the nearest surface. Negative distance means inside."""
+def distances_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (N, K) from each point to each of its candidate boxes (N, K indices) and the
+    outward unit normal (N, K, 3) of that box's nearest surface. Negative distance means inside."""
     centers = boxes.centers[candidates]                   # (N, K, 3)
     rotations = boxes.rotations[candidates]               # (N, K, 3, 3)
-    half = boxes.half_extents[candidates]
     local = np.einsum("nkji,nkj->nki", rotations, points[:, None, :] - centers)
-    excess = np.abs(local) - half
+    excess = np.abs(local) - boxes.half_extents[candidates]
     outside = np.maximum(excess, 0.0)
     outside_norm = np.linalg.norm(outside, axis=2)
-    deepest = excess.max(axis=2)
-    distance = outside_norm + np.minimum(deepest, 0.0)
+    distance = outside_norm + np.minimum(excess.max(axis=2), 0.0)
+    is_outside = outside_norm > 1e-12
+    # Outside: from the nearest point of the box. Inside: the face nearest the point.
+    normal_local = outside * np.sign(local) / np.maximum(outside_norm, 1e-12)[..., None]
+    face = np.argmax(excess, axis=2)
+    face_normal = np.zeros_like(local)
+    np.put_along_axis(face_normal, face[..., None], np.where(np.take_along_axis(local, face[..., None], 2) >= 0, 1.0, -1.0), 2)
+    normal_local = np.where(is_outside[..., None], normal_local, face_normal)
+    return distance, np.einsum("nkij,nkj->nki", rotations, normal_local)
+
+
+def signed_distance_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (N,) from each point to the union of its candidate boxes and the outward
+    normal (N, 3) of the nearest surface."""
+    distance, normal = distances_to_boxes(points, boxes, candidates)
     best = np.argmin(distance, axis=1)
     rows = np.arange(len(points))
-    excess_b, local_b, outside_b = excess[rows, best], local[rows, best], outside[rows, best]
-    is_outside = outside_norm[rows, best] > 1e-12
-    normal_local = np.where(is_outside[:, None], outside_b * np.sign(local_b)
-                            / np.maximum(outside_norm[rows, best], 1e-12)[:, None], 0.0)
-    face = np.argmax(excess_b, axis=1)
-    inside_rows = rows[~is_outside]
-    normal_local[inside_rows, face[~is_outside]] = np.sign(local_b[inside_rows, face[~is_outside]]) + (
-        local_b[inside_rows, face[~is_outside]] == 0)
-    normal = np.einsum("nij,nj->ni", rotations[rows, best], normal_local)
-    return distance[rows, best], normal
+    return distance[rows, best], normal[rows, best]
 
 
 class Terrain:
@@ -88,6 +91,22 @@ class Terrain:
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         points = np.atleast_2d(np.asarray(points, dtype=float))
         return signed_distance_to_boxes(points, self.boxes, self.candidates(points))
+
+    def sphere_contacts(self, centers: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Indentation (N,) of spheres in the terrain and the contact normal (N, 3).
+
+        A sphere in a concave corner (a block's top against the riser of a higher neighbour)
+        indents several boxes at once; a single nearest-surface normal would then jump between
+        them from one step to the next. The normal is the indentation-weighted mean of every
+        indented box's normal, and the indentation the largest one: both continuous."""
+        centers = np.atleast_2d(np.asarray(centers, dtype=float))
+        distance, normal = distances_to_boxes(centers, self.boxes, self.candidates(centers))
+        indentation = np.maximum(radius - distance, 0.0)
+        blended = np.einsum("nk,nki->ni", indentation, normal)
+        length = np.linalg.norm(blended, axis=1)
+        touching = length > 0
+        blended[touching] /= length[touching, None]
+        return indentation.max(axis=1), blended
 
 
 class FlatTerrain(Terrain):

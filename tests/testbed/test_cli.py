@@ -24,6 +24,17 @@ def test_run_writes_the_foundation_metrics(tmp_path, capsys):
     assert "fell=False" in capsys.readouterr().out
 
 
+def test_walking_run_reports_the_gait_metrics(tmp_path):
+    metrics = tmp_path / "m.json"
+    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "3", "--metrics", str(metrics)]) == 0
+    data = json.loads(metrics.read_text())
+    # 0.5 s still, 1 s ramp, then 0.1 m/s: about 0.2 m in 3 s
+    assert 0.15 < data["distance_m"] < 0.25
+    assert data["min_stability_margin_m"] > 0.03
+    assert data["target_error_m"] is None and data["ik_limited_ticks"] == 0
+    assert data["lateral_drift_m"] < 0.05 * data["distance_m"]
+
+
 def test_export_urdf_loads_as_19_bodies_and_18_revolute_joints(tmp_path):
     out = tmp_path / "hexapod.urdf"
     assert main(["export-urdf", str(out)]) == 0
@@ -45,6 +56,13 @@ def test_export_urdf_loads_as_19_bodies_and_18_revolute_joints(tmp_path):
     ["run", "--set", "terrain.slope_deg=90"],
     ["run", "--set", "robot.wings=2"],
     ["run", "--set", "nonsense"],
+    ["run", "--gait", "gallop"],
+    ["run", "--gait", "tripod", "--speed", "0.3"],          # stride longer than the legs allow
+    ["run", "--target", "2"],
+    ["run", "--target", "a,b"],
+    ["run", "--estimator", "kalman"],
+    ["run", "--controller", "autopilot"],
+    ["run", "--fault", "imu.accel.melt@1s"],
     ["launch"],
 ])
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, arguments):

@@ -1,0 +1,165 @@
+"""The dataset side of the `testbed` command line: `replay`, `info`, `view`, and the recording
+options of `run` (`--out`, `--rerun`, `--spawn`, `--from`).
+
+testbed/cli.py owns the parser and `main`; it calls `add_subcommands` and `add_run_arguments`
+while building the parser, `config_from_mcap` for `run --from`, `recorder_for` before a run and
+`after_run` after it. Handlers return an exit code; bad input raises UserError (one line, exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from datasets.reader import read_description
+from datasets.recorder import McapRecorder
+from testbed.config import Config
+from testbed.errors import UserError
+
+EXIT_OK = 0
+RUNS_FOLDER = Path("runs")
+
+
+# --- run -------------------------------------------------------------------------------------
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, metavar="RUN.mcap",
+                        help="record the run here (default runs/<UTC time>_<terrain>_<estimator>.mcap)")
+    parser.add_argument("--rerun", type=Path, metavar="RUN.rrd", help="also write a Rerun recording of the run")
+    parser.add_argument("--spawn", action="store_true", help="open the Rerun viewer on the run when it ends")
+    parser.add_argument("--from", dest="from_mcap", type=Path, metavar="RUN.mcap",
+                        help="start from the config recorded in RUN.mcap (other options override it)")
+
+
+def config_from_mcap(path: str | Path) -> dict[str, Any]:
+    """The resolved config recorded in a run's file, as a plain dict (`testbed.config.from_dict`)."""
+    return read_description(path).config_dict()
+
+
+def recorder_for(args: argparse.Namespace, config: Config) -> McapRecorder:
+    """The recorder of a `testbed run`: to --out, or to the default path under runs/."""
+    out = args.out if args.out is not None else default_run_path(config)
+    _check_output(out, "--out")
+    if args.rerun is not None:
+        _check_output(args.rerun, "--rerun")
+    return McapRecorder(out)
+
+
+def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
+    """Write the Rerun recording of the finished run (--rerun) and open a viewer on it (--spawn)."""
+    if args.rerun is None and not args.spawn:
+        return
+    rrd = args.rerun if args.rerun is not None else Path(mcap_path).with_suffix(".rrd")
+    _export(mcap_path, rrd)
+    if args.spawn:
+        spawn_viewer(rrd)
+
+
+def default_run_path(config: Config, folder: Path = RUNS_FOLDER) -> Path:
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stem = f"{stamp}_{config.run.terrain}_{config.run.estimator}"
+    path, n = folder / f"{stem}.mcap", 1
+    while path.exists():
+        path, n = folder / f"{stem}-{n}.mcap", n + 1
+    return path
+
+
+# --- replay, info, view ----------------------------------------------------------------------
+
+def add_subcommands(subparsers) -> None:
+    replay = subparsers.add_parser("replay", help="feed a recorded run's sensor streams to an estimator and score it")
+    replay.add_argument("file", type=Path, metavar="RUN.mcap")
+    replay.add_argument("--estimator", required=True, help="ekf | ukf | complementary | madgwick | mahony | vqf")
+    replay.add_argument("--out", type=Path, metavar="OUT.mcap", help="write the run with the replayed estimates")
+    replay.add_argument("--metrics", type=Path, metavar="FILE.json", help="write the replay's metrics as JSON")
+    replay.set_defaults(handler=cmd_replay)
+
+    info = subparsers.add_parser("info", help="duration, terrain, estimator, topics and metrics of a recorded run")
+    info.add_argument("file", type=Path, metavar="RUN.mcap")
+    info.set_defaults(handler=cmd_info)
+
+    view = subparsers.add_parser("view", help="convert a recorded run into a Rerun recording")
+    view.add_argument("file", type=Path, metavar="RUN.mcap")
+    view.add_argument("--rrd", type=Path, metavar="RUN.rrd", help="output file (default: RUN.rrd beside RUN.mcap)")
+    view.add_argument("--spawn", action="store_true", help="open the Rerun viewer on it")
+    view.set_defaults(handler=cmd_view)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from datasets.replay import replay
+    from testbed.metrics import write_metrics
+
+    if args.metrics is not None:
+        _check_output(args.metrics, "--metrics")
+    if args.out is not None:
+        _check_output(args.out, "--out")
+        if args.out.resolve() == args.file.resolve():
+            raise UserError(f"--out {args.out} would overwrite the file being replayed")
+    result = replay(args.file, args.estimator, args.out)
+    if result.truncation_note:
+        print(f"testbed: warning: {result.truncation_note}", file=sys.stderr)
+    if args.metrics is not None:
+        write_metrics(args.metrics, result.metrics)
+    m = result.metrics
+    print(f"replay of {args.file} through {args.estimator}: roll RMSE {_deg(m['roll_rmse_deg'])}, "
+          f"pitch RMSE {_deg(m['pitch_rmse_deg'])}; {m['sim_time_s']:.2f} s of data, {result.samples} samples, "
+          f"in {m['wall_s']:.2f} s (x{m['realtime_factor']:.1f} real time)"
+          + (f"; wrote {args.out}" if args.out is not None else ""))
+    return EXIT_OK
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from datasets.info import describe
+
+    print(describe(args.file))
+    return EXIT_OK
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    rrd = args.rrd if args.rrd is not None else args.file.with_suffix(".rrd")
+    _check_output(rrd, "--rrd")
+    _export(args.file, rrd)
+    if args.spawn:
+        spawn_viewer(rrd)
+    return EXIT_OK
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+def _export(mcap_path: str | Path, rrd: Path) -> None:
+    from datasets.reader import read_recording
+    from datasets.rerun_export import export_rrd
+
+    recording = read_recording(mcap_path)
+    if recording.truncation_note():
+        print(f"testbed: warning: {recording.truncation_note()}", file=sys.stderr)
+    export_rrd(recording, rrd)
+    print(f"wrote {rrd}")
+
+
+def spawn_viewer(rrd: Path) -> None:
+    """Open the Rerun viewer on `rrd` in the background, when there is a display to open it on."""
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        print(f"testbed: no display: not opening a viewer (run `rerun {rrd}` where there is one)", file=sys.stderr)
+        return
+    subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def _check_output(path: Path, option: str) -> None:
+    if path.is_dir():
+        raise UserError(f"{option} {path} is a directory")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"{option} {path}: folder {parent} is not writable")
+
+
+def _deg(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.4f} deg"

@@ -1,0 +1,63 @@
+"""`testbed info RUN.mcap`: what a recording holds, in a few lines of text."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from datasets.reader import Recording, read_recording
+
+METRIC_ORDER = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
+                "anees_tilt", "fell", "weight_support_ratio", "min_stability_margin_m", "distance_m",
+                "realtime_factor", "sim_time_s", "wall_s")
+
+
+def describe(path: str | Path) -> str:
+    recording = read_recording(path, topics=())
+    return "\n".join(_header(recording) + _topics(recording) + _metrics(recording))
+
+
+def _header(recording: Recording) -> list[str]:
+    run = recording.run_info()
+    size = recording.path.stat().st_size
+    duration = recording.duration_s()
+    state = "complete" if recording.truncated is None else f"TRUNCATED: {recording.truncated}"
+    lines = [f"{recording.path}: {_megabytes(size)} ({state})"]
+    if run:
+        lines.append(f"terrain {run.get('terrain', '?')}, estimator {run.get('estimator', '?')}, "
+                     f"gait {run.get('gait', '?')}, seed {run.get('seed', '?')}, "
+                     f"configured duration {run.get('duration_s', '?')} s, recorded {run.get('created_utc', '?')}")
+    else:
+        lines.append("no testbed run description (not written by testbed run)")
+    per_second = f", {size / duration / 1000:.0f} kB per simulated second" if duration > 0 else ""
+    lines.append(f"duration {duration:.3f} s of simulated time, {recording.message_count()} messages{per_second}")
+    error = recording.outcome().get("error")
+    if error:
+        lines.append(f"run stopped early: {error}")
+    return lines
+
+
+def _topics(recording: Recording) -> list[str]:
+    lines = ["topics:"]
+    width = max((len(name) for name in recording.topics), default=0)
+    for name, stats in sorted(recording.topics.items()):
+        rate = f"{stats.rate_hz:9.1f} Hz" if stats.rate_hz is not None else " " * 12
+        lines.append(f"  {name:<{width}}  {stats.count:8d} msgs {rate}  {stats.schema}")
+    return lines
+
+
+def _metrics(recording: Recording) -> list[str]:
+    metrics = recording.metrics()
+    if metrics is None:
+        return ["metrics: none (the run did not finish writing this file)"]
+    keys = [key for key in METRIC_ORDER if key in metrics] + sorted(set(metrics) - set(METRIC_ORDER))
+    return ["metrics:"] + [f"  {key}: {_format(metrics[key])}" for key in keys]
+
+
+def _format(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return "null" if value is None else str(value)
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.2f} MB"

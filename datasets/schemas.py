@@ -1,0 +1,121 @@
+"""Protobuf schemas of the dataset's own messages, and the topic table.
+
+Poses and transforms use Foxglove's schemas (foxglove.PoseInFrame, foxglove.FrameTransform,
+foxglove.SceneUpdate) so that Foxglove and Rerun draw them. Everything else is a message of the
+`hexapod` package below, built at import time from descriptors (no generated code to keep in
+sync); each MCAP file carries the full FileDescriptorSet of its schemas, so any protobuf reader
+can decode a file without this module.
+
+Every `hexapod` message starts with `double t`, the simulation time in seconds exactly as the
+simulation produced it (the MCAP log time is the same instant rounded to nanoseconds). Vectors
+and matrices are packed repeated doubles, row-major. A proto3 `optional` field is absent where the
+estimator gives no value; an empty repeated field likewise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf import descriptor_pb2, descriptor_pool
+from google.protobuf.message_factory import GetMessageClass
+
+PACKAGE = "hexapod"
+FORMAT_VERSION = "1"
+
+_TYPES = {"double": descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
+          "bool": descriptor_pb2.FieldDescriptorProto.TYPE_BOOL,
+          "uint32": descriptor_pb2.FieldDescriptorProto.TYPE_UINT32,
+          "string": descriptor_pb2.FieldDescriptorProto.TYPE_STRING}
+
+# message name -> fields (name, type, kind); kind: "one" (singular), "many" (repeated), "maybe"
+# (proto3 optional). Field numbers follow the order; never reorder, only append.
+MESSAGES: dict[str, list[tuple[str, str, str]]] = {
+    "ImuSample": [("t", "double", "one"), ("accel", "double", "many"), ("gyro", "double", "many")],
+    "AccelSample": [("t", "double", "one"), ("index", "uint32", "one"), ("accel", "double", "many")],
+    "EncoderSample": [("t", "double", "one"), ("positions", "double", "many")],
+    "FootSample": [("t", "double", "one"), ("normal_forces", "double", "many"), ("contact", "bool", "many")],
+    "Estimate": [("t", "double", "one"), ("quaternion", "double", "many"), ("roll", "double", "one"),
+                 ("pitch", "double", "one"), ("yaw", "double", "one"), ("attitude_cov", "double", "many"),
+                 ("gyro_bias", "double", "many"), ("gyro_bias_cov", "double", "many"),
+                 ("terrain_roll", "double", "maybe"), ("terrain_pitch", "double", "maybe"),
+                 ("body_height", "double", "maybe"), ("terrain_cov", "double", "many")],
+    "FeetTruth": [("t", "double", "one"), ("foot_positions", "double", "many"), ("foot_contact", "bool", "many")],
+    "TruthState": [("t", "double", "one"), ("body_position", "double", "many"),
+                   ("body_rotation", "double", "many"), ("body_linear_velocity", "double", "many"),
+                   ("body_angular_velocity", "double", "many"), ("body_linear_acceleration", "double", "many"),
+                   ("body_angular_acceleration", "double", "many"), ("joint_positions", "double", "many"),
+                   ("joint_velocities", "double", "many"), ("foot_positions", "double", "many"),
+                   ("foot_forces", "double", "many"), ("foot_normal_forces", "double", "many"),
+                   ("foot_contact", "bool", "many"), ("com_position", "double", "many")],
+    "Contacts": [("t", "double", "one"), ("points", "double", "many"), ("normals", "double", "many"),
+                 ("forces", "double", "many"), ("normal_forces", "double", "many"), ("in_contact", "bool", "many")],
+    "Support": [("t", "double", "one"), ("polygon", "double", "many"), ("com_projection", "double", "many"),
+                ("stability_margin", "double", "one")],
+    "Command": [("t", "double", "one"), ("phase", "double", "many"), ("swinging", "bool", "many"),
+                ("foot_targets", "double", "many"), ("joint_targets", "double", "many"),
+                ("body_twist", "double", "many")],
+}
+
+
+def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
+    proto = descriptor_pb2.FileDescriptorProto(name=f"{PACKAGE}/dataset.proto", package=PACKAGE, syntax="proto3")
+    for message_name, fields in MESSAGES.items():
+        message = proto.message_type.add(name=message_name)
+        for number, (name, type_name, kind) in enumerate(fields, start=1):
+            field = message.field.add(name=name, number=number, type=_TYPES[type_name], json_name=name,
+                                      label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED if kind == "many"
+                                      else descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL)
+            if kind == "maybe":
+                # proto3 `optional`: a synthetic one-field oneof gives the field presence.
+                field.proto3_optional = True
+                field.oneof_index = len(message.oneof_decl)
+                message.oneof_decl.add(name=f"_{name}")
+    return proto
+
+
+def _message_classes() -> dict[str, type]:
+    pool = descriptor_pool.DescriptorPool()
+    file = pool.Add(_file_descriptor())
+    return {name: GetMessageClass(file.message_types_by_name[name]) for name in MESSAGES}
+
+
+CLASSES = _message_classes()
+ImuSampleMsg = CLASSES["ImuSample"]
+AccelSampleMsg = CLASSES["AccelSample"]
+EncoderSampleMsg = CLASSES["EncoderSample"]
+FootSampleMsg = CLASSES["FootSample"]
+EstimateMsg = CLASSES["Estimate"]
+FeetTruthMsg = CLASSES["FeetTruth"]
+TruthStateMsg = CLASSES["TruthState"]
+ContactsMsg = CLASSES["Contacts"]
+SupportMsg = CLASSES["Support"]
+CommandMsg = CLASSES["Command"]
+
+
+@dataclass(frozen=True)
+class Topic:
+    name: str
+    message_class: type
+    description: str
+
+
+TRUTH_POSE = Topic("/truth/pose", PoseInFrame, "body pose in the world frame at every physics step")
+TF = Topic("/tf", FrameTransform, "world -> body transform at the truth rate")
+TERRAIN = Topic("/terrain", SceneUpdate, "the terrain's boxes, once at t = 0")
+TRUTH_FEET = Topic("/truth/feet", FeetTruthMsg, "foot centres and contact flags at every physics step")
+TRUTH_STATE = Topic("/truth/state", TruthStateMsg, "body twist and accelerations, joints, feet, centre of mass")
+TRUTH_CONTACTS = Topic("/truth/contacts", ContactsMsg, "contact points, normals and forces")
+TRUTH_SUPPORT = Topic("/truth/support", SupportMsg, "support polygon, centre-of-mass projection, stability margin")
+IMU = Topic("/sensors/imu", ImuSampleMsg, "IMU samples")
+ACCEL_ARRAY = Topic("/sensors/accel_array", AccelSampleMsg, "accelerometer-array samples")
+ENCODERS = Topic("/sensors/encoders", EncoderSampleMsg, "joint-encoder samples")
+FEET = Topic("/sensors/feet", FootSampleMsg, "foot force-sensor samples")
+ESTIMATE = Topic("/estimate", EstimateMsg, "estimator output with covariances")
+COMMAND = Topic("/command", CommandMsg, "gait phase, foot targets, joint commands, commanded twist")
+
+TOPICS = (TRUTH_POSE, TRUTH_FEET, TF, TERRAIN, TRUTH_STATE, TRUTH_CONTACTS, TRUTH_SUPPORT, IMU, ACCEL_ARRAY, ENCODERS, FEET,
+          ESTIMATE, COMMAND)
+SENSOR_TOPICS = (IMU.name, ACCEL_ARRAY.name, ENCODERS.name, FEET.name)

@@ -1,0 +1,121 @@
+"""The estimator interface shared by the live run and offline replay.
+
+An estimator consumes timestamped sensor samples, in time order, one at a time, and returns an
+`Estimate` after every IMU sample that changed its state. Encoder and foot samples are absorbed
+silently and show up in the next estimate. Estimators never see ground truth, hold no random
+state, and are deterministic: the same samples in the same order give bit-identical estimates,
+which is what lets a replay reproduce a recorded run exactly.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
+
+if TYPE_CHECKING:
+    from testbed.config import Config
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """State of an estimator at time t. Arrays are owned by the estimate: do not modify them.
+
+    Attitude is world_from_body with a z-up world; roll, pitch and yaw are ZYX Euler angles
+    (R = Rz(yaw) Ry(pitch) Rx(roll), scipy's `as_euler("ZYX")` reversed). Roll and pitch are with
+    respect to gravity; yaw is relative to the start heading and unobservable (its variance grows).
+    Terrain roll and pitch are those of a body lying flat on the support plane with the robot's
+    current heading; body height is the distance from the body origin O_b to that plane (the
+    plane through the stance feet's contact points).
+    """
+    t: float                                   # s
+    quaternion: np.ndarray                     # (4,) world_from_body, scipy order x, y, z, w
+    roll: float                                # rad
+    pitch: float                               # rad
+    yaw: float                                 # rad
+    attitude_cov: np.ndarray | None = None     # (3, 3) covariance of the (roll, pitch, yaw) errors, rad^2
+    gyro_bias: np.ndarray | None = None        # (3,) rad/s, body frame
+    gyro_bias_cov: np.ndarray | None = None    # (3, 3) (rad/s)^2
+    terrain_roll: float | None = None          # rad
+    terrain_pitch: float | None = None         # rad
+    body_height: float | None = None           # m
+    terrain_cov: np.ndarray | None = None      # (3, 3) covariance of (terrain_roll, terrain_pitch, body_height)
+
+
+class Estimator(abc.ABC):
+    """Base class: rotates IMU samples into the body frame and dispatches on the sample type.
+
+    imu_rotation is body_from_imu (3x3); the IMU's lever arm is left to the estimators that
+    model it (the fusion filters take `imu_position`).
+    """
+
+    name: ClassVar[str]
+
+    @classmethod
+    @abc.abstractmethod
+    def from_config(cls, config: "Config") -> "Estimator":
+        """The estimator with the run's tuning, robot geometry and sensor mounting."""
+
+    def __init__(self, imu_rotation: np.ndarray | None = None):
+        rotation = np.eye(3) if imu_rotation is None else np.asarray(imu_rotation, dtype=float)
+        if rotation.shape != (3, 3) or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-9) \
+                or np.linalg.det(rotation) < 0:
+            raise ValueError("imu_rotation must be a 3x3 rotation matrix (body_from_imu)")
+        self._body_from_imu = None if np.array_equal(rotation, np.eye(3)) else rotation
+
+    def update(self, sample: Sample) -> Estimate | None:
+        if isinstance(sample, ImuSample):
+            return self._update_imu(sample.t, self._to_body(sample.gyro), self._to_body(sample.accel))
+        if isinstance(sample, EncoderSample):
+            self._update_encoders(sample)
+            return None
+        if isinstance(sample, FootSample):
+            self._update_feet(sample)
+            return None
+        if isinstance(sample, AccelSample):
+            return None
+        raise TypeError(f"{type(self).__name__} cannot use a {type(sample).__name__}")
+
+    def _to_body(self, vector: np.ndarray) -> np.ndarray | None:
+        """The IMU vector in the body frame, or None when it is not a finite 3-vector."""
+        vector = np.asarray(vector, dtype=float)
+        # The sum is finite only if every component is: one scalar test instead of an array one.
+        if vector.shape != (3,) or not math.isfinite(vector[0] + vector[1] + vector[2]):
+            return None
+        return vector if self._body_from_imu is None else self._body_from_imu @ vector
+
+    @abc.abstractmethod
+    def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
+        """Body-frame gyro (rad/s) and specific force (m/s^2); None for an invalid reading."""
+
+    def _update_encoders(self, sample: EncoderSample) -> None:
+        """Attitude-only estimators ignore the legs."""
+
+    def _update_feet(self, sample: FootSample) -> None:
+        """Attitude-only estimators ignore the legs."""
+
+
+def imu_rotation(config: "Config") -> np.ndarray:
+    """body_from_imu of the configured IMU mounting (sensor geometry is known; truth is not)."""
+    return np.array(config.sensors.imu.body_from_sensor)
+
+
+def imu_position(config: "Config") -> np.ndarray:
+    """m, body frame: the IMU's accelerometer point."""
+    return np.array(config.sensors.imu.position, dtype=float)
+
+
+def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
+    """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
+    estimates = []
+    for sample in samples:
+        estimate = estimator.update(sample)
+        if estimate is not None:
+            estimates.append(estimate)
+    return estimates

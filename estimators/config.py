@@ -1,0 +1,154 @@
+"""Tuning of the estimators: the `[estimators]` table of `testbed/defaults.toml`.
+
+The values are the estimators' *beliefs* about the sensors and the motion (noise densities,
+process noise, gates), not the sensor models themselves. Units are SI (rad, m, s) unless a key
+ends in `_deg`. This module imports nothing from the rest of the testbed but its errors, so that
+`testbed.config` can import it without a cycle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from testbed.errors import ConfigError
+
+ESTIMATOR_NAMES = ("ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")    # estimators.registry
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+def _positive(where: str, value: float) -> None:
+    _require(math.isfinite(value) and value > 0, f"{where} must be a positive finite number, got {value}")
+
+
+def _non_negative(where: str, value: float) -> None:
+    _require(math.isfinite(value) and value >= 0, f"{where} must be a finite number >= 0, got {value}")
+
+
+def _probability(where: str, value: float) -> None:
+    _require(math.isfinite(value) and 0.5 <= value < 1.0, f"{where} must lie in [0.5, 1), got {value}")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Models of the IMU + leg-kinematics filter, shared by `ekf` and `ukf`."""
+    gyro_noise_density: float          # rad/s/sqrt(Hz)
+    gyro_bias_random_walk: float       # rad/s^2/sqrt(Hz)
+    gyro_bias_initial_std: float       # rad/s
+    accel_noise_density: float         # m/s^2/sqrt(Hz)
+    accel_bias_initial_std: float      # m/s^2: turn-on offset plus misalignment, per axis
+    accel_bias_random_walk: float      # m/s^3/sqrt(Hz)
+    body_accel_std: float              # m/s^2, stationary std of the body acceleration (Gauss-Markov)
+    body_accel_time_constant: float    # s, its correlation time
+    initial_tilt_std_deg: float
+    initial_yaw_std_deg: float
+    initial_velocity_std: float        # m/s
+    accel_inflation_deadband: float    # m/s^2: | |f| - g | below this leaves the accelerometer noise as is
+    accel_inflation_scale: float       # m/s^2: noise std grows by one per this much excess above the deadband
+    accel_gate_probability: float      # chi-square gate (3 dof) of the specific-force innovation
+    gate_recovery_time: float          # s: after this long rejecting, the tilt is reopened as at start
+    stance_min_force: float            # N: a foot in contact carrying less is not planted yet (or any more)
+    foot_position_std: float           # m, stance-foot position from the encoders (noise, compliance)
+    foot_slip_std: float               # m/sqrt(s), random walk of a stance foot on the ground
+    foot_gate_probability: float       # chi-square gate (3 dof) of a foot's innovation; beyond it, it slipped
+    bias_fault_window: float           # s, span over which the tilt corrections are summed
+    bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
+    bias_fault_std: float              # rad/s, uncertainty added to the gyro bias when it did
+
+    def __post_init__(self) -> None:
+        for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
+                     "body_accel_std",
+                     "body_accel_time_constant", "initial_tilt_std_deg", "initial_yaw_std_deg",
+                     "initial_velocity_std", "accel_inflation_scale", "gate_recovery_time",
+                     "foot_position_std", "foot_slip_std", "bias_fault_window", "bias_fault_std"):
+            _positive(f"estimators.ekf.{name}", getattr(self, name))
+        _non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)
+        _non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
+        _non_negative("estimators.ekf.accel_inflation_deadband", self.accel_inflation_deadband)
+        _non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
+        _probability("estimators.ekf.accel_gate_probability", self.accel_gate_probability)
+        _probability("estimators.ekf.foot_gate_probability", self.foot_gate_probability)
+        _probability("estimators.ekf.bias_fault_probability", self.bias_fault_probability)
+        _require(self.initial_tilt_std_deg <= 90 and self.initial_yaw_std_deg <= 90,
+                 "estimators.ekf initial attitude std must not exceed 90 deg")
+
+
+@dataclass(frozen=True)
+class TerrainEstimatorConfig:
+    """Support plane through the stance feet (used by `ekf` and `ukf`)."""
+    slope_random_walk: float           # 1/sqrt(s): how fast the terrain slope under the robot changes
+    height_random_walk: float          # m/sqrt(s): how fast the body height above it changes
+    change_gate_probability: float     # chi-square (3 dof): beyond it the filter restarts on the new plane
+
+    def __post_init__(self) -> None:
+        _positive("estimators.terrain.slope_random_walk", self.slope_random_walk)
+        _positive("estimators.terrain.height_random_walk", self.height_random_walk)
+        _probability("estimators.terrain.change_gate_probability", self.change_gate_probability)
+
+
+@dataclass(frozen=True)
+class UkfConfig:
+    """Merwe scaled sigma points (filterpy `MerweScaledSigmaPoints`)."""
+    alpha: float
+    beta: float
+    kappa: float
+    max_yaw_std_deg: float             # sigma points must stay within +-180 deg of the mean
+
+    def __post_init__(self) -> None:
+        _require(math.isfinite(self.alpha) and 0 < self.alpha <= 1, f"estimators.ukf.alpha must lie in (0, 1], "
+                                                                     f"got {self.alpha}")
+        _non_negative("estimators.ukf.beta", self.beta)
+        _non_negative("estimators.ukf.kappa", self.kappa)
+        _require(math.isfinite(self.max_yaw_std_deg) and 0 < self.max_yaw_std_deg <= 45,
+                 f"estimators.ukf.max_yaw_std_deg must lie in (0, 45], got {self.max_yaw_std_deg}")
+
+
+@dataclass(frozen=True)
+class ComplementaryConfig:
+    time_constant: float               # s: the accelerometer is trusted below 1 / (2 pi tau) Hz
+
+    def __post_init__(self) -> None:
+        _positive("estimators.complementary.time_constant", self.time_constant)
+
+
+@dataclass(frozen=True)
+class MadgwickConfig:
+    gain: float                        # beta of Madgwick 2010, rad/s
+
+    def __post_init__(self) -> None:
+        _positive("estimators.madgwick.gain", self.gain)
+
+
+@dataclass(frozen=True)
+class MahonyConfig:
+    k_p: float                         # 1/s
+    k_i: float                         # 1/s^2
+
+    def __post_init__(self) -> None:
+        _positive("estimators.mahony.k_p", self.k_p)
+        _non_negative("estimators.mahony.k_i", self.k_i)
+
+
+@dataclass(frozen=True)
+class VqfConfig:
+    tau_acc: float                     # s, low-pass time constant of the inclination correction
+    motion_bias_estimation: bool
+    rest_bias_estimation: bool
+
+    def __post_init__(self) -> None:
+        _positive("estimators.vqf.tau_acc", self.tau_acc)
+
+
+@dataclass(frozen=True)
+class EstimatorsConfig:
+    ekf: FusionConfig
+    terrain: TerrainEstimatorConfig
+    ukf: UkfConfig
+    complementary: ComplementaryConfig
+    madgwick: MadgwickConfig
+    mahony: MahonyConfig
+    vqf: VqfConfig

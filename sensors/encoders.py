@@ -1,0 +1,41 @@
+"""Joint encoders: absolute angle of each of the 18 joints with Gaussian noise, quantized to `bits`
+over one turn (2 pi / 2^bits per count) and wrapped to [-pi, pi), like a smart servo's encoder.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sensors.config import EncoderConfig
+from sensors.faults import Fault, FaultInjector
+from sensors.samples import EncoderSample
+from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
+from testbed.truth import NUM_JOINTS, Truth
+
+
+class Encoders:
+    def __init__(self, config: EncoderConfig, run_seed: int, faults: tuple[Fault, ...]) -> None:
+        self.config = config
+        self.clock = SampleClock(config.rate)
+        self.lsb = config.lsb
+        self._counts_per_turn = 2**config.bits
+        rng = np.random.default_rng(sensor_seed(run_seed, "encoder"))
+        self._noise = RowBuffer(gaussian_rows(rng, config.noise, NUM_JOINTS)) if config.noise > 0 else None
+        # A spike of one half turn by default: the worst a wrapped angle can be off.
+        self._faults = FaultInjector(faults, "encoder", NUM_JOINTS, np.full(NUM_JOINTS, math.pi))
+
+    def corrupt(self, angles: np.ndarray) -> np.ndarray:
+        return angles + self._noise.next() if self._noise else np.array(angles, dtype=float)
+
+    def digitize(self, raw: np.ndarray) -> np.ndarray:
+        half = self._counts_per_turn // 2
+        counts = (np.rint(raw / self.lsb) + half) % self._counts_per_turn - half
+        return counts * self.lsb
+
+    def samples_at(self, truth: Truth, t: float) -> list[EncoderSample]:
+        out, dropped = measure(self, self._faults, t, truth.joint_positions)
+        if dropped is not None and dropped.all():
+            return []
+        return [EncoderSample(t, out)]

@@ -1,0 +1,38 @@
+"""Foot force sensors: the normal force on each foot with Gaussian noise, saturating at
++-full_scale, and a contact flag with hysteresis: it rises above contact_on and falls below
+contact_off. A dropped (NaN) reading has no contact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sensors.config import FootConfig
+from sensors.faults import Fault, FaultInjector
+from sensors.samples import FootSample
+from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
+from testbed.truth import NUM_LEGS, Truth
+
+
+class FootSensors:
+    def __init__(self, config: FootConfig, run_seed: int, faults: tuple[Fault, ...]) -> None:
+        self.config = config
+        self.clock = SampleClock(config.rate)
+        rng = np.random.default_rng(sensor_seed(run_seed, "foot"))
+        self._noise = RowBuffer(gaussian_rows(rng, config.noise, NUM_LEGS)) if config.noise > 0 else None
+        self._faults = FaultInjector(faults, "foot", NUM_LEGS, np.full(NUM_LEGS, config.full_scale))
+        self._contact = np.zeros(NUM_LEGS, dtype=bool)
+
+    def corrupt(self, forces: np.ndarray) -> np.ndarray:
+        return forces + self._noise.next() if self._noise else np.array(forces, dtype=float)
+
+    def digitize(self, raw: np.ndarray) -> np.ndarray:
+        return np.minimum(np.maximum(raw, -self.config.full_scale), self.config.full_scale)
+
+    def samples_at(self, truth: Truth, t: float) -> list[FootSample]:
+        forces, dropped = measure(self, self._faults, t, truth.foot_normal_forces)
+        if dropped is not None and dropped.all():
+            return []
+        # NaN compares False both ways, so a dropped foot reads no contact.
+        self._contact = (forces > self.config.contact_on) | (self._contact & (forces >= self.config.contact_off))
+        return [FootSample(t, forces, self._contact.copy())]

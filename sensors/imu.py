@@ -1,0 +1,46 @@
+"""IMU at a pose on the body: a 3-axis accelerometer (specific force at its point, lever arm
+included) and a 3-axis gyro, sampled together. Default parameters: Bosch BMI088 (docs/sensors.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import block_diag
+
+from sensors.config import ImuConfig
+from sensors.faults import Fault, FaultInjector
+from sensors.inertial_errors import InertialChannels, TriadErrors
+from sensors.motion import BodyMotion, MotionCache
+from sensors.samples import ImuSample
+from sensors.sampling import SampleClock, measure, sensor_seed
+from testbed.truth import Truth
+
+
+class Imu:
+    def __init__(self, config: ImuConfig, run_seed: int, faults: tuple[Fault, ...], motion: MotionCache) -> None:
+        self.config = config
+        self.clock = SampleClock(config.rate)
+        self._motion = motion
+        self._position = np.array(config.position, dtype=float)
+        sensor_from_body = config.body_from_sensor.T
+        triads = [TriadErrors(config.accel, config.rate, sensor_seed(run_seed, "imu.accel")),
+                  TriadErrors(config.gyro, config.rate, sensor_seed(run_seed, "imu.gyro"))]
+        self.channels = InertialChannels(triads, frame=block_diag(sensor_from_body, sensor_from_body))
+        self._faults = FaultInjector(faults, "imu", 6, self.channels.full_scale)
+
+    def body_values(self, motion: BodyMotion) -> np.ndarray:
+        """(6,) noise-free specific force at the IMU point and angular velocity, body frame."""
+        return np.concatenate((motion.specific_force_at(self._position), motion.angular_velocity))
+
+    def samples_at(self, truth: Truth, t: float) -> list[ImuSample]:
+        out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))
+        if dropped is not None and dropped.all():
+            return []
+        return [ImuSample(t, out[:3], out[3:])]
+
+    def record(self, truth: Truth, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Times, accel (n, 3) and gyro (n, 3) of n samples from t = 0 of a body held in `truth`'s
+        state: the vectorised path (same noise streams as samples_at, faults not applied) for long
+        still records such as the Allan deviation. Use it on a fresh Imu."""
+        out = self.channels.record(self.body_values(BodyMotion(truth, self._motion.gravity)), n)
+        return np.arange(n) / self.config.rate, out[:, :3], out[:, 3:]

@@ -1,0 +1,171 @@
+"""Nothing lost: truncated files are recovered, Ctrl-C cannot corrupt a file, a killed process
+leaves a readable one; bad input is one clear UserError."""
+
+from __future__ import annotations
+
+import os
+import signal
+import struct
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from mcap.writer import Writer
+
+from datasets.reader import read_recording
+from datasets.recorder import McapRecorder
+from datasets.replay import replay
+from tests.datasets.conftest import record, run_rerun
+from tests.datasets.test_roundtrip import assert_same_sample
+from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
+from testbed.errors import UserError
+
+
+def cut(source, target, fraction: float) -> None:
+    data = source.read_bytes()
+    target.write_bytes(data[:int(len(data) * fraction)])
+
+
+def test_a_truncated_file_gives_back_what_precedes_the_cut(ekf_run, tmp_path):
+    _, ticks, path = ekf_run
+    truncated = tmp_path / "cut.mcap"
+    cut(path, truncated, 0.5)
+    recording = read_recording(truncated)
+    assert recording.truncated is not None and "truncated" in recording.truncation_note()
+    written = [sample for tick in ticks for sample in tick.samples]
+    read = recording.samples()
+    assert 0 < len(read) < len(written)
+    for a, b in zip(read, written):
+        assert_same_sample(a, b)
+    assert recording.metrics() is None and recording.config().run.estimator == "ekf"
+    result = replay(truncated, "ekf")
+    assert result.truncation_note is not None and result.samples == len(read)
+
+
+def test_a_file_that_lost_only_its_summary_keeps_every_message(ekf_run, tmp_path):
+    _, ticks, path = ekf_run
+    data = path.read_bytes()
+    # Footer: opcode, length, summary_start, summary_offset_start, crc, then the closing magic.
+    (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 4 - 8 - 8)
+    truncated = tmp_path / "no_summary.mcap"
+    truncated.write_bytes(data[:summary_start])
+    recording = read_recording(truncated)
+    assert recording.truncated == "it is cut short before its footer"
+    assert len(recording.samples()) == sum(len(tick.samples) for tick in ticks)
+    assert recording.metrics() == {"roll_rmse_deg": 0.5}
+
+
+def test_a_file_cut_inside_its_first_records_is_not_a_dataset(ekf_run, tmp_path):
+    _, _, path = ekf_run
+    truncated = tmp_path / "head.mcap"
+    truncated.write_bytes(path.read_bytes()[:40])
+    with pytest.raises(UserError, match="holds no testbed run config"):
+        replay(truncated, "ekf")
+
+
+def test_a_corrupt_chunk_ends_the_readable_part(ekf_run, tmp_path):
+    _, _, path = ekf_run
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 64] = bytes(64)
+    corrupt = tmp_path / "corrupt.mcap"
+    corrupt.write_bytes(bytes(data))
+    recording = read_recording(corrupt)
+    assert recording.truncated is not None and 0 < len(recording.samples())
+
+
+def test_bad_files_are_one_line_user_errors(tmp_path):
+    text = tmp_path / "notes.mcap"
+    text.write_text("hello\n")
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    cases = {tmp_path / "missing.mcap": "no such file", text: "not an MCAP file", empty: "not an MCAP file",
+             tmp_path: "is a directory"}
+    for path, message in cases.items():
+        with pytest.raises(UserError, match=message) as error:
+            replay(path, "ekf")
+        assert "\n" not in str(error.value)
+
+
+def test_a_foreign_mcap_is_not_a_testbed_dataset(tmp_path):
+    path = tmp_path / "other.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start()
+        schema = writer.register_schema("x", "jsonschema", b"{}")
+        channel = writer.register_channel("/chatter", "json", schema)
+        writer.add_message(channel, 1, b"{}", 1)
+        writer.finish()
+    with pytest.raises(UserError, match="holds no testbed run config"):
+        replay(path, "ekf")
+
+
+def test_a_recording_without_the_streams_an_estimator_needs_is_refused(tmp_path):
+    config = synthetic_config("complementary", sensors={"faults": ["imu.dropout@0s"]})
+    path = tmp_path / "no_imu.mcap"
+    record(path, config, list(generate_ticks(config, 0.3)))
+    assert read_recording(path).topics["/sensors/encoders"].count > 0
+    with pytest.raises(UserError, match="has no /sensors/imu messages, which a replay through 'ekf' needs"):
+        replay(path, "ekf")
+
+
+def test_an_unknown_estimator_is_a_user_error(ekf_run):
+    _, _, path = ekf_run
+    with pytest.raises(UserError, match="unknown estimator 'kalman'"):
+        replay(path, "kalman")
+
+
+def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly(tmp_path):
+    config = synthetic_config("complementary")
+    ticks = list(generate_ticks(config, 1.2))
+    recorder = McapRecorder(tmp_path / "run.mcap")
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    writer = recorder._dataset._writer
+    original_add = writer.add_message
+    calls = []
+
+    def add_then_interrupt(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 10:
+            os.kill(os.getpid(), signal.SIGINT)    # lands in the middle of a batch of writes
+        return original_add(*args, **kwargs)
+
+    writer.add_message = add_then_interrupt
+    with pytest.raises(KeyboardInterrupt):
+        for tick in ticks:
+            recorder.record(tick)
+    written_before_interrupt = len(calls)
+    assert written_before_interrupt > 10      # the batch went on to its end
+    recorder.finish({"interrupted": True}, "interrupted")
+    recording = read_recording(recorder.path)
+    assert recording.truncated is None and recording.metrics() == {"interrupted": True}
+    assert run_rerun("mcap", "check", str(recorder.path)).returncode == 0
+
+
+KILLED_RUN = textwrap.dedent("""
+    import os, sys
+    from datasets.recorder import McapRecorder
+    from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
+    config = synthetic_config("complementary")
+    recorder = McapRecorder(sys.argv[1])
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    for tick in generate_ticks(config, 1.7):
+        recorder.record(tick)
+    os.kill(os.getpid(), 9)
+""")
+
+
+def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path):
+    path = tmp_path / "killed.mcap"
+    result = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path)], cwd=os.getcwd(), timeout=120)
+    assert result.returncode == -9
+    partial = path.with_name(path.name + ".partial")
+    assert partial.exists() and not path.exists()
+    recording = read_recording(partial)
+    assert recording.truncated is not None
+    # flushed every 0.5 s of simulated time: everything up to t = 1.5 s is there
+    assert 1.5 <= recording.duration_s() < 1.7
+    assert replay(partial, "complementary").metrics["roll_rmse_deg"] is not None

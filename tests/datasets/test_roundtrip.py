@@ -1,0 +1,163 @@
+"""Record -> read gives back every stream bit for bit, plus the run description; the file passes
+rerun's own MCAP check."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from datasets import schemas
+from datasets.reader import read_description, read_recording
+from sensors.samples import AccelSample, FootSample, ImuSample
+from tests.datasets.conftest import record, run_rerun
+from tests.datasets.ticks import generate_ticks, synthetic_config
+from testbed.robot import build_urdf
+
+ARRAY_FIELDS = {"ImuSample": ("accel", "gyro"), "AccelSample": ("accel",), "EncoderSample": ("positions",),
+                "FootSample": ("normal_forces", "contact")}
+
+
+def assert_same_sample(read, written) -> None:
+    assert type(read) is type(written) and read.t == written.t
+    if isinstance(read, AccelSample):
+        assert read.index == written.index
+    for name in ARRAY_FIELDS[type(read).__name__]:
+        a, b = getattr(read, name), getattr(written, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name     # bytes: NaN payloads too
+
+
+def assert_same_estimate(read, written) -> None:
+    for name in ("t", "roll", "pitch", "yaw", "terrain_roll", "terrain_pitch", "body_height"):
+        assert getattr(read, name) == getattr(written, name), name
+    for name in ("quaternion", "attitude_cov", "gyro_bias", "gyro_bias_cov", "terrain_cov"):
+        a, b = getattr(read, name), getattr(written, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            assert a.shape == b.shape and a.tobytes() == b.tobytes(), name
+
+
+def test_every_sample_comes_back_bit_for_bit_in_handing_order(ekf_run):
+    _, ticks, path = ekf_run
+    written = [sample for tick in ticks for sample in tick.samples]
+    read = read_recording(path).samples()
+    assert len(read) == len(written)
+    for a, b in zip(read, written):
+        assert_same_sample(a, b)
+    assert any(isinstance(s, ImuSample) and np.isnan(s.accel).any() for s in read)
+    assert any(isinstance(s, FootSample) and not s.contact.any() for s in read)
+
+
+def test_every_estimate_comes_back_bit_for_bit(ekf_run):
+    _, ticks, path = ekf_run
+    written = [estimate for tick in ticks for estimate in tick.estimates]
+    read = read_recording(path).estimates()
+    assert len(read) == len(written) > 1000
+    for a, b in zip(read, written):
+        assert_same_estimate(a, b)
+    assert any(e.terrain_roll is None for e in read) and any(e.terrain_roll is not None for e in read)
+
+
+def test_estimates_without_covariance_come_back_as_none(tmp_path):
+    config = synthetic_config("complementary")
+    ticks = list(generate_ticks(config, 0.2))
+    path = tmp_path / "c.mcap"
+    record(path, config, ticks)
+    written = [estimate for tick in ticks for estimate in tick.estimates]
+    read = read_recording(path).estimates()
+    assert len(read) == len(written) and written[0].attitude_cov is None
+    for a, b in zip(read, written):
+        assert_same_estimate(a, b)
+
+
+def test_truth_and_commands_come_back_at_the_truth_rate(ekf_run):
+    _, ticks, path = ekf_run
+    recording = read_recording(path)
+    every = int(recording.run_info()["truth_every"])
+    assert every == 5 and float(recording.run_info()["truth_rate_hz"]) == 200.0
+    expected = ticks[::every]
+    states, contacts, supports, commands = (recording.truth_states(), recording.contacts(), recording.supports(),
+                                            recording.commands())
+    assert len(states) == len(contacts) == len(supports) == len(commands) == len(expected)
+    for tick, state, (t, contact), support, command in zip(expected, states, contacts, supports, commands):
+        for name in ("body_position", "body_rotation", "body_linear_velocity", "body_angular_velocity",
+                     "body_linear_acceleration", "body_angular_acceleration", "joint_positions", "joint_velocities",
+                     "foot_positions", "foot_forces", "foot_normal_forces", "foot_contact", "com_position"):
+            np.testing.assert_array_equal(getattr(state, name), getattr(tick.truth, name), err_msg=name)
+        assert state.t == t == support.t == tick.truth.t
+        for name in ("points", "normals", "forces", "normal_forces", "in_contact"):
+            np.testing.assert_array_equal(getattr(contact, name), getattr(tick.contacts, name), err_msg=name)
+        np.testing.assert_array_equal(support.polygon, tick.support_polygon)
+        np.testing.assert_array_equal(support.com_projection, tick.truth.com_position[:2])
+        assert support.stability_margin == tick.stability_margin
+        for name in ("t", "phase", "swinging", "foot_targets", "joint_targets", "body_twist"):
+            np.testing.assert_array_equal(getattr(command, name), getattr(tick.command, name), err_msg=name)
+
+
+def test_pose_and_feet_are_recorded_at_every_physics_step(ekf_run):
+    _, ticks, path = ekf_run
+    truth = read_recording(path).scoring_truth()
+    assert len(truth.t) == len(ticks)
+    np.testing.assert_array_equal(truth.t, [tick.truth.t for tick in ticks])
+    np.testing.assert_array_equal(truth.quaternion, [tick.truth_quaternion for tick in ticks])
+    np.testing.assert_array_equal(truth.body_position, [tick.truth.body_position for tick in ticks])
+    np.testing.assert_array_equal(truth.foot_positions, [tick.truth.foot_positions for tick in ticks])
+    np.testing.assert_array_equal(truth.foot_contact, [tick.truth.foot_contact for tick in ticks])
+
+
+def test_log_times_are_simulation_nanoseconds(ekf_run):
+    _, ticks, path = ekf_run
+    recording = read_recording(path)
+    log_ns = [entry[0] for entry in recording.messages[schemas.TRUTH_POSE.name]]
+    assert log_ns == [round(tick.truth.t * 1e9) for tick in ticks]
+    imu = recording.messages[schemas.IMU.name]
+    assert all(np.diff([entry[0] for entry in imu]) > 0)
+    assert recording.topics[schemas.IMU.name].rate_hz == pytest.approx(1000.0)
+
+
+def test_the_file_describes_and_reproduces_its_run(ekf_run):
+    config, _, path = ekf_run
+    recording = read_recording(path)
+    assert recording.config() == config
+    assert recording.urdf() == build_urdf(config.robot)
+    assert recording.attachments["config.toml"].decode() == config.to_toml()
+    assert recording.metrics() == {"roll_rmse_deg": 0.5}
+    assert recording.outcome()["error"] == ""
+    assert recording.run_info()["terrain"] == "flat" and recording.run_info()["estimator"] == "ekf"
+    versions = recording.metadata["versions"]
+    assert versions["mcap"] and versions["numpy"] and versions["python"]
+    assert recording.terrain().centers.shape == (1, 3)
+    assert read_description(path).config_dict() == json.loads(json.dumps(config.to_dict()))
+
+
+def test_poses_use_foxglove_schemas_and_the_rest_protobuf(ekf_run):
+    _, _, path = ekf_run
+    topics = read_recording(path, topics=()).topics
+    assert topics["/truth/pose"].schema == "foxglove.PoseInFrame"
+    assert topics["/tf"].schema == "foxglove.FrameTransform"
+    assert topics["/terrain"].schema == "foxglove.SceneUpdate"
+    assert topics["/estimate"].schema == "hexapod.Estimate"
+
+
+def test_the_file_gets_its_final_name_only_when_finished(tmp_path):
+    from datasets.recorder import McapRecorder
+    from tests.datasets.ticks import terrain_and_urdf
+
+    config = synthetic_config("complementary")
+    recorder = McapRecorder(tmp_path / "run.mcap")
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    for tick in generate_ticks(config, 0.1):
+        recorder.record(tick)
+    assert recorder.partial_path.exists() and not recorder.path.exists()
+    recorder.finish({}, "interrupted at t = 0.100 s")
+    recorder.finish({}, None)          # a second call changes nothing
+    assert recorder.path.exists() and not recorder.partial_path.exists()
+    assert read_recording(recorder.path).outcome()["error"] == "interrupted at t = 0.100 s"
+
+
+def test_rerun_mcap_check_passes(ekf_run):
+    _, _, path = ekf_run
+    result = run_rerun("mcap", "check", str(path))
+    assert result.returncode == 0, result.stdout + result.stderr

@@ -1,0 +1,83 @@
+"""Shared synthetic data for the estimator tests: built once per session, runs cached by key."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimators.base import Estimate, run_estimator
+from estimators.registry import make_estimator
+from estimators.scoring import EstimateArrays, estimate_arrays
+from testbed import config as testbed_config
+from testbed.kinematics import LegGeometry, nominal_stance
+from tests.estimators import synthetic
+
+WALK_SECONDS = 6.0
+WALK_SEEDS = (0, 1, 2, 3)
+
+
+@pytest.fixture(scope="session")
+def config():
+    """Default config, except that the fusion filters believe in a calibrated accelerometer:
+    the synthetic IMU has no accelerometer offset (a separate test covers one)."""
+    return testbed_config.load().replace(estimators={"ekf": {"accel_bias_initial_std": 0.002}})
+
+
+@pytest.fixture(scope="session")
+def geometry(config) -> LegGeometry:
+    return LegGeometry.from_config(config.robot)
+
+
+@pytest.fixture(scope="session")
+def stance(config, geometry) -> np.ndarray:
+    robot = config.robot
+    return nominal_stance(geometry, robot.stance_radius, robot.stance_height, robot.foot_radius)
+
+
+@pytest.fixture(scope="session")
+def spec(config) -> synthetic.SensorSpec:
+    """The synthetic sensors at the configured IMU mounting."""
+    return synthetic.SensorSpec(imu_position=tuple(config.sensors.imu.position))
+
+
+@pytest.fixture(scope="session")
+def walk(config, geometry) -> synthetic.Trajectory:
+    robot = config.robot
+    return synthetic.walking_trajectory(geometry, robot.foot_radius, robot.stance_radius, robot.stance_height,
+                                        duration=WALK_SECONDS)
+
+
+@pytest.fixture(scope="session")
+def slope_walk(config, geometry) -> synthetic.Trajectory:
+    robot = config.robot
+    return synthetic.walking_trajectory(geometry, robot.foot_radius, robot.stance_radius, robot.stance_height,
+                                        duration=6.0, slope_deg=10.0)
+
+
+class Runs:
+    """Estimates of (estimator, seed) on the walk's samples, computed once."""
+
+    def __init__(self, config, walk, spec):
+        self.config, self.walk, self.spec = config, walk, spec
+        self._samples: dict[int, list] = {}
+        self._runs: dict[tuple[str, int], tuple[list[Estimate], object]] = {}
+
+    def samples(self, seed: int) -> list:
+        if seed not in self._samples:
+            self._samples[seed] = synthetic.samples(self.walk, self.spec, seed)
+        return self._samples[seed]
+
+    def run(self, name: str, seed: int) -> tuple[list[Estimate], object]:
+        """(estimates, the estimator after the run)."""
+        if (name, seed) not in self._runs:
+            estimator = make_estimator(name, self.config)
+            self._runs[name, seed] = run_estimator(estimator, self.samples(seed)), estimator
+        return self._runs[name, seed]
+
+    def arrays(self, name: str, seed: int) -> EstimateArrays:
+        return estimate_arrays(self.run(name, seed)[0])
+
+
+@pytest.fixture(scope="session")
+def runs(config, walk, spec) -> Runs:
+    return Runs(config, walk, spec)

@@ -1,0 +1,82 @@
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from estimators.base import Estimate
+from estimators.scoring import (METRIC_KEYS, EstimateArrays, TerrainTruth, anees_bounds, estimate_arrays,
+                                roll_pitch_yaw, score)
+
+T = np.arange(3000) / 1000.0
+ROLL = 0.1 * np.sin(2 * np.pi * T)
+PITCH = -0.05 + 0.03 * np.cos(2 * np.pi * T)
+YAW = 1.0 + 0.5 * T                         # yaw must not leak into roll and pitch
+TRUTH = Rotation.from_euler("ZYX", np.column_stack([YAW, PITCH, ROLL])).as_matrix()
+
+
+def arrays(roll, pitch, cov=None, terrain=None) -> EstimateArrays:
+    terrain = terrain or (None, None, None)
+    return EstimateArrays(T, roll, pitch, cov, *terrain)
+
+
+def test_truth_angles_use_the_estimates_euler_convention():
+    assert np.allclose(roll_pitch_yaw(TRUTH), np.column_stack([ROLL, PITCH, YAW]))
+
+
+def test_a_constant_roll_offset():
+    offset = math.radians(0.5)
+    roll = ROLL + offset
+    roll[:1000] += 1.0                      # the first second is not scored
+    cov = np.tile(np.diag([offset**2, offset**2]), (len(T), 1, 1))
+    metrics = score(arrays(roll, PITCH, cov), T, TRUTH)
+    assert set(metrics) == set(METRIC_KEYS)
+    assert metrics["roll_rmse_deg"] == pytest.approx(0.5)
+    assert metrics["pitch_rmse_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert metrics["tilt_error_max_deg"] == pytest.approx(0.5, rel=1e-3)    # a roll error tilts by as much
+    assert metrics["anees_tilt"] == pytest.approx(1.0)                      # (0.5 / 0.5)^2 + 0
+    assert metrics["slope_error_deg"] is None and metrics["height_est_rmse_m"] is None
+
+
+def test_without_covariance_there_is_no_anees():
+    assert score(arrays(ROLL, PITCH), T, TRUTH)["anees_tilt"] is None
+
+
+def test_tilt_error_is_the_angle_between_gravity_directions():
+    # Rolled 60 deg, a 1 deg pitch error still moves the gravity direction by 1 deg.
+    roll = np.full_like(T, math.radians(60.0))
+    truth = Rotation.from_euler("ZYX", np.column_stack([YAW, np.zeros_like(T), roll])).as_matrix()
+    metrics = score(arrays(roll, np.full_like(T, math.radians(1.0))), T, truth)
+    assert metrics["tilt_error_max_deg"] == pytest.approx(1.0, rel=1e-3)
+    assert metrics["pitch_rmse_deg"] == pytest.approx(1.0)
+
+
+def test_terrain_metrics():
+    truth = TerrainTruth(T, np.zeros_like(T), np.full_like(T, math.radians(-10.0)), np.full_like(T, 0.1))
+    slope_error = np.where(T < 2.0, math.radians(5.0), math.radians(0.4))    # settles by 2 s
+    height = np.where(T < 1.0, np.nan, 0.1 + 0.003 * np.sign(np.sin(7 * T)))
+    terrain = (np.zeros_like(T), math.radians(-10.0) + slope_error, height)
+    metrics = score(arrays(ROLL, PITCH, terrain=terrain), T, TRUTH, truth)
+    assert metrics["slope_error_deg"] == pytest.approx(0.4, rel=1e-6)
+    assert metrics["height_est_rmse_m"] == pytest.approx(0.003, rel=1e-3)
+
+
+def test_estimate_arrays_from_estimates():
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    estimates = [Estimate(0.0, q, 0.1, 0.2, 0.0, attitude_cov=np.eye(3)),
+                 Estimate(0.001, q, 0.1, 0.2, 0.0, attitude_cov=np.eye(3), terrain_roll=0.0, terrain_pitch=0.1,
+                          body_height=0.1)]
+    result = estimate_arrays(estimates)
+    assert result.tilt_cov.shape == (2, 2, 2)
+    assert np.isnan(result.body_height[0]) and result.body_height[1] == 0.1
+    assert estimate_arrays([Estimate(0.0, q, 0.1, 0.2, 0.0)]).tilt_cov is None
+
+
+def test_anees_bounds_of_the_issue():
+    low, high = anees_bounds(10)
+    assert (round(low, 2), round(high, 2)) == (0.96, 3.42)
+
+
+def test_nothing_to_score_is_an_error():
+    with pytest.raises(ValueError, match="no estimate after the first 5.0 s"):
+        score(arrays(ROLL, PITCH), T, TRUTH, skip=5.0)

@@ -1,0 +1,57 @@
+"""Joint encoders (quantization, wrap, noise) and foot sensors (noise, saturation, hysteresis)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sensors.samples import EncoderSample, FootSample
+from tests.sensors.helpers import of_type, run, sensors_config, steps, truth
+
+
+def encoder_readings(config, angles):
+    """One encoder sample per angle: all 18 joints at that angle."""
+    states = [truth(k / config.encoder.rate, joint_positions=np.full(18, a)) for k, a in enumerate(angles)]
+    return np.array([s.positions for s in of_type(run(config, states), EncoderSample)])
+
+
+@pytest.mark.parametrize("bits", [12, 10])
+def test_encoder_quantization_step_is_two_pi_over_two_to_the_bits(bits):
+    config = sensors_config(encoder={"bits": bits, "noise": 0.0})
+    angles = np.linspace(-1.0, 1.0, 3001)
+    readings = encoder_readings(config, angles)[:, 0]
+    steps_seen = np.diff(readings)
+    assert np.min(steps_seen[steps_seen > 0]) == pytest.approx(2 * math.pi / 2**bits, rel=1e-9)
+    assert np.all(np.isin(np.round(steps_seen / config.encoder.lsb), [0, 1]))
+    assert np.max(np.abs(readings - angles)) <= config.encoder.lsb / 2 + 1e-12
+
+
+def test_encoder_wraps_to_minus_pi_pi_and_noise_has_its_configured_sigma():
+    config = sensors_config(encoder={"noise": 0.01})
+    readings = encoder_readings(config, [math.pi + 0.1] * 400)
+    assert np.all((readings >= -math.pi) & (readings < math.pi))
+    assert np.mean(readings) == pytest.approx(-math.pi + 0.1, abs=1e-3)
+    assert np.std(readings) == pytest.approx(0.01, rel=0.05)
+
+
+def test_encoder_rate_is_200_samples_per_second_by_default():
+    samples = of_type(run(sensors_config(), steps(1.0)), EncoderSample)
+    assert len(samples) == 201 and samples[-1].t == 1.0
+
+
+def test_foot_contact_flag_has_threshold_and_hysteresis():
+    config = sensors_config(foot={"noise": 0.0})
+    force_profile = [0.0, 0.8, 1.2, 0.8, 0.6, 0.4, 0.8, 1.1]     # N; on at 1.0, off at 0.5
+    states = [truth(k / config.foot.rate, foot_forces=np.full(6, f)) for k, f in enumerate(force_profile)]
+    samples = of_type(run(config, states), FootSample)
+    assert [bool(s.contact[0]) for s in samples] == [False, False, True, True, True, False, False, True]
+    np.testing.assert_allclose(samples[2].normal_forces, 1.2)
+
+
+def test_foot_force_noise_and_saturation():
+    config = sensors_config()
+    samples = of_type(run(config, steps(2.0, lambda t: truth(t, foot_forces=[5.0, 5.0, 5.0, 5.0, 5.0, 80.0]))), FootSample)
+    forces = np.array([s.normal_forces for s in samples])
+    assert np.std(forces[:, :5]) == pytest.approx(config.foot.noise, rel=0.1)
+    np.testing.assert_allclose(forces[:, 5], config.foot.full_scale)
+    assert all(s.contact.all() for s in samples)
