@@ -136,6 +136,8 @@ def _export(mcap_path: str | Path, rrd: Path) -> None:
     from datasets.rerun_export import export_rrd
 
     recording = read_recording(mcap_path)
+    if not recording.message_count():
+        raise UserError(f"{mcap_path} holds no messages to view" + (f" ({recording.truncated})" if recording.truncated else ""))
     if recording.truncation_note():
         print(f"testbed: warning: {recording.truncation_note()}", file=sys.stderr)
     export_rrd(recording, rrd)

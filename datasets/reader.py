@@ -21,7 +21,7 @@ from mcap.exceptions import EndOfFile
 from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.stream_reader import StreamReader, get_chunk_data_stream
+from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
 
 from datasets import codec, schemas
 from datasets.scoring import ScoringTruth
@@ -287,8 +287,12 @@ def _records(reader: StreamReader, recording: Recording) -> Iterator[Any]:
 def _describe(error: Exception) -> str:
     if isinstance(error, EndOfFile):
         return "it is cut short before its footer"
+    if isinstance(error, struct.error) or "past the end" in str(error):
+        return "it is cut short in the middle of a record"
+    if isinstance(error, CRCValidationError):
+        return "a chunk fails its CRC check"
     text = str(error).splitlines()[0] if str(error) else ""
-    return f"a record is unreadable: {type(error).__name__}{': ' + text if text else ''}"
+    return f"a record is unreadable ({type(error).__name__}{': ' + text if text else ''})"
 
 
 def _check_is_mcap(path: Path) -> None:

@@ -41,6 +41,7 @@ class FusionConfig:
     gyro_bias_initial_std: float       # rad/s
     accel_noise_density: float         # m/s^2/sqrt(Hz)
     accel_bias_initial_std: float      # m/s^2: turn-on offset plus misalignment, per axis
+    accel_bias_estimation: bool        # false: the offset is a "consider" state, in the covariance only
     accel_bias_random_walk: float      # m/s^3/sqrt(Hz)
     body_accel_std: float              # m/s^2, stationary std of the body acceleration (Gauss-Markov)
     body_accel_time_constant: float    # s, its correlation time

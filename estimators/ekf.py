@@ -112,8 +112,15 @@ class EkfEstimator(FusionEstimator):
     def _apply(self, PHt: np.ndarray, S_inverse: np.ndarray, innovation: np.ndarray) -> None:
         """Kalman correction, error injection and reset."""
         gain = PHt @ S_inverse
+        if self.consider is None:
+            P = self.P - gain @ PHt.T
+        else:
+            # Schmidt-Kalman: "consider" states keep their value; their uncertainty still counts.
+            # With a gain K that is not the optimal one, P - K H P - P H^T K^T + K S K^T (Joseph).
+            gain[self.consider] = 0.0
+            KPHt = gain @ PHt.T
+            P = self.P - KPHt - KPHt.T + gain @ np.linalg.inv(S_inverse) @ gain.T
         dx = gain @ innovation
-        P = self.P - gain @ PHt.T
         dtheta = dx[THETA]
         if abs(dtheta[0]) + abs(dtheta[1]) + abs(dtheta[2]) > RESET_THRESHOLD:
             # Reset (Sola 2017, section 6.3): P <- G P G^T, G = I - [dtheta / 2]x on the attitude block.

@@ -11,7 +11,7 @@ for Legged Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the bo
 Process (per IMU sample, gyro w_m, w = w_m - b_g):
     q'   = q * Exp(w dt)                     gyro integration (Sola 2017, section 5.3)
     v'   = Exp(w dt)^T v + a dt              v_dot = a - w x v in a rotating frame
-    a'   = exp(-dt / tau) a                  first-order Gauss-Markov walking acceleration
+    a'   = exp(-dt / tau) a                  first-order Gauss-Markov body acceleration
     p_i' = Exp(w dt)^T p_i - v dt            a stance foot is fixed in the world (plus slip noise)
     b_g' = b_g, b_a' = b_a                   plus random walks
 Measurements:
@@ -21,10 +21,10 @@ Measurements:
     stance foot i    FK_i(encoders) - r_imu = p_i   (forward kinematics, eq. 2 of the paper)
 A foot's state restarts from its kinematics at every touchdown. The feet pin the displacement of
 the body, hence v and the integral of a, hence the tilt, within a fraction of a second.
-A constant accelerometer bias looks like a tilt; they separate only as the body turns, so the
-filter reports the tilt uncertainty that the b_a prior implies until then. Without encoders
-the filter falls back on the Gauss-Markov prior of a: a gravity-direction filter whose
-accelerometer noise is the walking acceleration.
+A constant accelerometer bias looks like a tilt; they separate only as the body turns. By
+default b_a is a "consider" state (Schmidt-Kalman): never updated, but its prior widens the tilt
+covariance. Without encoders the filter falls back on the Gauss-Markov prior of a: a
+gravity-direction filter whose accelerometer noise is the body acceleration.
 """
 
 from __future__ import annotations
@@ -51,11 +51,12 @@ THETA, BIAS, VEL, ACC, ACCEL_BIAS = (slice(0, 3), slice(3, 6), slice(6, 9), slic
 FEET = slice(15, ERROR_DIM)
 
 
-def foot(leg: int) -> slice:
-    return slice(15 + 3 * leg, 18 + 3 * leg)
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): keeps the velocity block well conditioned
-TERRAIN_PERIOD = 0.02          # s between support-plane fits: the plane changes at the gait's pace
-DRIFT_WINDOWS = 1.0            # windows of drift at the new bias assumed before a bias step is detected
+
+
+def foot(leg: int) -> slice:
+    """The error-state slice of foot `leg`."""
+    return slice(15 + 3 * leg, 18 + 3 * leg)
 
 
 @dataclass
@@ -173,8 +174,7 @@ class BiasStepDetector:
         basis = horizontal_basis(up)
         drift = basis @ self._sum
         covariance = basis @ self._covariance @ basis.T
-        moved = bool(drift @ np.linalg.solve(covariance, drift) > self.threshold) if np.linalg.det(covariance) > 0 \
-            else False
+        moved = bool(np.linalg.det(covariance) > 0 and drift @ np.linalg.solve(covariance, drift) > self.threshold)
         self._start, self._sum, self._covariance = t, np.zeros(3), np.zeros((3, 3))
         self.detections += moved
         return moved
@@ -183,7 +183,7 @@ class BiasStepDetector:
 class FusionEstimator(Estimator):
     """Front end of `ekf` and `ukf`: time keeping, gates, leg odometry, terrain and the output.
 
-    Subclasses hold the filter core: `state` (NominalState), `P` (15x15 error covariance) and the
+    Subclasses hold the filter core: `state` (NominalState), `P` (33x33 error covariance) and the
     three methods below, which call `_record_tilt_correction` after every applied update.
     """
 
@@ -201,6 +201,8 @@ class FusionEstimator(Estimator):
         self.legs = StanceTracker(geometry, params.stance_min_force)
         self.terrain = TerrainFilter(terrain)
         self.bias_steps = BiasStepDetector(params.bias_fault_window, params.bias_fault_probability)
+        # States whose uncertainty is carried but which updates leave alone (Schmidt 1966).
+        self.consider = None if params.accel_bias_estimation else ACCEL_BIAS
         self.state: NominalState | None = None
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
@@ -211,7 +213,6 @@ class FusionEstimator(Estimator):
         self._last_gyro = np.zeros(3)
         self._last_dt = 0.0
         self._accel_rejected_since: float | None = None
-        self._last_terrain_t = -math.inf
 
     # -- filter core ---------------------------------------------------------------------------
 
@@ -255,11 +256,11 @@ class FusionEstimator(Estimator):
 
     def _open_bias(self, up: np.ndarray) -> None:
         """The gyro bias moved: widen its uncertainty, and the tilt's by the drift it may have
-        caused over the last two detection windows. The tilt is widened together with the body
+        caused over a detection window. The tilt is widened together with the body
         acceleration, da = -g [u]x dtheta, which leaves the predicted specific force unchanged:
         otherwise the next accelerometer sample would be read as pure tilt."""
         step = self.params.bias_fault_std
-        drift = step * DRIFT_WINDOWS * self.params.bias_fault_window
+        drift = step * self.bias_steps.window
         horizontal = np.eye(3) - np.outer(up, up)
         direction = np.zeros((ERROR_DIM, 3))
         direction[THETA] = horizontal
@@ -352,9 +353,6 @@ class FusionEstimator(Estimator):
         self.legs.tracked[leg] = True
 
     def _terrain_update(self, t: float, feet: np.ndarray) -> None:
-        if t - self._last_terrain_t < TERRAIN_PERIOD - 1e-9:
-            return
-        self._last_terrain_t = t
         stance = feet[self.legs.measurable(feet)]
         fit = fit_plane(stance @ rot.to_matrix(self.state.q).T, self.params.foot_position_std)
         if fit is not None:

@@ -142,13 +142,18 @@ def terrain_metrics(estimates: EstimateArrays, truth: TerrainTruth, height_from:
 
 
 def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarray, body_position: np.ndarray,
-                        body_rotation: np.ndarray, foot_radius: float) -> TerrainTruth:
-    """Terrain truth with the estimators' definition: the least-squares plane through the foot
-    centres in contact, lowered by the foot radius; angles in the true heading frame."""
+                        body_rotation: np.ndarray, foot_radius: float, normal_forces: np.ndarray | None = None,
+                        min_force: float = 0.0) -> TerrainTruth:
+    """Terrain truth with the estimators' definition: the least-squares plane through the centres of
+    the feet in contact (and, given the true normal forces, carrying at least `min_force`, as the
+    estimators' planted feet), lowered by the foot radius; angles in the true heading frame."""
     yaw = roll_pitch_yaw(body_rotation)[:, 2]
+    support = np.asarray(contact, dtype=bool)
+    if normal_forces is not None:
+        support = support & (np.asarray(normal_forces) >= min_force)
     out = np.full((len(t), 3), np.nan)
     for k in range(len(t)):
-        fit = fit_plane(feet_world[k][contact[k]] - body_position[k], 0.0)
+        fit = fit_plane(feet_world[k][support[k]] - body_position[k], 0.0)
         if fit is None:
             continue
         (a, b, height), _ = slopes_and_height(fit, foot_radius)

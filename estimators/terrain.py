@@ -20,7 +20,7 @@ from scipy.stats import chi2
 from estimators.config import TerrainEstimatorConfig
 from estimators.linalg import inverse3
 
-MIN_FOOT_SPREAD = 0.01    # m: feet this close to a line do not define a plane
+MIN_FOOT_SPREAD = 0.03    # m: feet this close to a line (one side's three feet) define no reliable plane
 YAW_TOLERANCE = 1e-3      # rad: heading change that refreshes the reported terrain angles
 
 

@@ -6,11 +6,14 @@ Bad input gives one line on stderr and exit code 2, with nothing written.
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
+from datasets import commands as dataset_commands
 from testbed import config as config_module
 from testbed.errors import ConfigError, UserError
 
@@ -95,6 +98,7 @@ def _add_run_parser(subparsers) -> None:
     parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                         help="override one config value, e.g. terrain.slope_deg=-10 (repeatable)")
     parser.add_argument("--metrics", type=Path, help="write the run's metrics as JSON here")
+    dataset_commands.add_run_arguments(parser)
     parser.set_defaults(handler=_cmd_run)
 
 
@@ -102,12 +106,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from testbed.metrics import write_metrics
     from testbed.runner import run
 
-    cfg = config_module.load(args.config, _run_overrides(args))
+    base = None if args.from_mcap is None else dataset_commands.config_from_mcap(args.from_mcap)
+    cfg = config_module.load(args.config, _run_overrides(args), base=base)
     if args.metrics is not None and args.metrics.is_dir():
         raise UserError(f"--metrics {args.metrics} is a directory")
-    outcome = run(cfg)
+    recorder = dataset_commands.recorder_for(args, cfg)
+    outcome = run(cfg, recorder)
     if args.metrics is not None:
         write_metrics(args.metrics, outcome.metrics)
+    print(f"recorded {recorder.path}")
+    if not outcome.interrupted:
+        dataset_commands.after_run(args, recorder.path)
     m = outcome.metrics
     print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
           f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
@@ -146,10 +155,14 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     _add_run_parser(subparsers)
     _add_export_parser(subparsers)
+    dataset_commands.add_subcommands(subparsers)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # A run started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C
+    # and `kill -INT` must still stop it cleanly (the recorder closes its file on the way out).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         args = build_parser().parse_args(argv)
         return args.handler(args)
@@ -162,6 +175,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("testbed: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader of our output went away (`testbed info run.mcap | head`): stop quietly.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

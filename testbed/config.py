@@ -326,9 +326,11 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"invalid TOML in {path}: {error}") from None
 
 
-def load(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
-    """Defaults, then the user's TOML file, then command-line overrides; validated."""
-    data = default_dict()
+def load(path: str | Path | None = None, overrides: dict[str, Any] | None = None,
+         base: dict[str, Any] | None = None) -> Config:
+    """Defaults (or `base`, e.g. a recorded run's config), then the user's TOML file, then
+    command-line overrides; validated."""
+    data = default_dict() if base is None else _merge(default_dict(), base)
     if path is not None:
         data = _merge(data, read_toml(path))
     if overrides:

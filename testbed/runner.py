@@ -75,8 +75,12 @@ def run(config: Config, recorder: Recorder | None = None) -> RunOutcome:
     recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
     try:
-        samples = sensors.update(sim.truth())
+        truth = sim.truth()
+        samples = sensors.update(truth)
         command, estimates = pilot.tick(sim.time, samples)
+        tick = make_tick(sim, truth, samples, command, estimates, support)   # t = 0: the first samples
+        metrics.add(tick)
+        recorder.record(tick)
         for step in range(steps):
             sim.step(command.joint_targets)
             truth = sim.truth()

@@ -24,6 +24,7 @@ from sensors.samples import EncoderSample, FootSample, ImuSample
 from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 
 GRAVITY = 9.81
+ROBOT_WEIGHT = 23.0        # N, shared by the feet on the ground
 GAIT_FREQUENCY = 1.0        # Hz, one tripod cycle per second
 DOUBLE_SUPPORT = 0.025      # s at each tripod switch with all six feet down
 ROCK_AMPLITUDE = math.radians(3.0)
@@ -382,5 +383,5 @@ def samples(trajectory: Trajectory, spec: SensorSpec = SensorSpec(), seed: int =
             out.append(EncoderSample(t, joints[k]))
         if spec.with_legs and foot_due[k]:
             contact = trajectory.contact[k]
-            out.append(FootSample(t, np.where(contact, 25.0 / max(1, contact.sum()), 0.0), contact))
+            out.append(FootSample(t, np.where(contact, ROBOT_WEIGHT / max(1, contact.sum()), 0.0), contact))
     return out

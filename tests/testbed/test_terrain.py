@@ -19,16 +19,20 @@ def dart_raycast_down(group, x: float, y: float) -> tuple[float, np.ndarray]:
     return float(hit.mPoint[2]), np.asarray(hit.mNormal)
 
 
+# A smaller terrain keeps Bullet's raycast set-up short (600 rough blocks instead of 4800).
+SMALL = config.load(overrides={"terrain": {"extent": [-1.5, 1.5, -1.0, 1.0]}})
+
+
 @pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
 def test_height_and_normal_agree_with_dart_shapes(name):
-    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(3))
+    terrain = make_terrain(name, SMALL.terrain, np.random.default_rng(3))
     detector = dart.collision.BulletCollisionDetector()   # the detector with raycasts in DART
     group = detector.createCollisionGroup()
     skeleton = build_terrain_skeleton(terrain, 0.8)   # keep alive: the group does not own it
     group.addShapeFramesOf(skeleton)
     rng = np.random.default_rng(4)
     cell = CFG.terrain.rough_cell
-    for x, y in rng.uniform([-1.5, -2.5], [5.5, 2.5], (40, 2)):
+    for x, y in rng.uniform([-1.4, -0.9], [1.4, 0.9], (40, 2)):
         if name == "rough":   # stay off block edges, where the normal is not defined
             x, y = (np.floor(np.array([x, y]) / cell) + 0.5) * cell
         if name == "step" and abs(x - CFG.terrain.step_edge_x) < 0.01:
