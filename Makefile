@@ -12,8 +12,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
+# The main scenario: the tripod gait down the paper's step, the EKF estimating attitude, recorded
+# to MCAP and converted for the Rerun viewer.
 run: $(STAMP)
-	$(BIN)/testbed run --terrain step --duration 10 --metrics runs/last_metrics.json
+	$(BIN)/testbed run --terrain step --gait tripod --estimator ekf --duration 10 \
+		--out runs/main.mcap --rerun runs/main.rrd --metrics runs/main_metrics.json
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
