@@ -19,13 +19,12 @@ import math
 import numpy as np
 
 from estimators import rotations as rot
-from estimators.linalg import inverse3, skew, stacked_skew
 from estimators.base import imu_position, imu_rotation
 from estimators.fusion import (ACC, ACCEL_BIAS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator, foot,
-                               inject, predicted_specific_force, propagate)
+                               inject_in_place, predicted_specific_force, propagate)
+from estimators.linalg import inverse3, skew, stacked_skew
 from testbed.config import Config
 from testbed.kinematics import LegGeometry
-
 
 I3 = np.eye(3)
 RESET_THRESHOLD = 1e-6    # rad: below it the reset changes P by under 1e-6 of itself: skipped
@@ -43,6 +42,9 @@ class EkfEstimator(FusionEstimator):
         self._F_dt: float | None = None
         self._process_diagonal = np.zeros(ERROR_DIM)
         self._foot_blocks = np.zeros((NUM_FEET, 9))
+        self._H_specific_force = np.zeros((3, ERROR_DIM))     # H_a = H_ba = I; H_theta set per sample
+        self._H_specific_force[:, ACC] = I3
+        self._H_specific_force[:, ACCEL_BIAS] = I3
 
     @classmethod
     def from_config(cls, config: Config) -> "EkfEstimator":
@@ -62,6 +64,8 @@ class EkfEstimator(FusionEstimator):
         F[_FOOT_BLOCK_ROWS, _FOOT_BLOCK_COLUMNS] = self._foot_blocks.ravel()
         F[FEET, BIAS] = stacked_skew(-dt * old.feet)
         P = F @ self.P @ F.T
+        P += P.T        # F P F^T + Q, symmetrised against rounding
+        P *= 0.5
         P.flat[::ERROR_DIM + 1] += self._process_diagonal
         self.P = P
 
@@ -76,11 +80,9 @@ class EkfEstimator(FusionEstimator):
         self._process_diagonal = self.noise.process(dt, self._decay)
 
     def _correct_specific_force(self, accel: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
-        up = np.array(rot.up_in_body(self.state.q))
-        H = np.zeros((3, ERROR_DIM))
-        H[:, THETA] = skew(self.gravity * up)
-        H[:, ACC] = I3
-        H[:, ACCEL_BIAS] = I3
+        ux, uy, uz = rot.up_in_body(self.state.q)
+        H = self._H_specific_force
+        H[:, THETA] = skew((self.gravity * ux, self.gravity * uy, self.gravity * uz))
         return self._correct(H, accel - predicted_specific_force(self.state, self.gravity), variance, gate)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
@@ -112,14 +114,13 @@ class EkfEstimator(FusionEstimator):
     def _apply(self, PHt: np.ndarray, S_inverse: np.ndarray, innovation: np.ndarray) -> None:
         """Kalman correction, error injection and reset."""
         gain = PHt @ S_inverse
-        if self.consider is None:
-            P = self.P - gain @ PHt.T
-        else:
-            # Schmidt-Kalman: "consider" states keep their value; their uncertainty still counts.
-            # With a gain K that is not the optimal one, P - K H P - P H^T K^T + K S K^T (Joseph).
-            gain[self.consider] = 0.0
-            KPHt = gain @ PHt.T
-            P = self.P - KPHt - KPHt.T + gain @ np.linalg.inv(S_inverse) @ gain.T
+        P = self.P - gain @ PHt.T
+        if self.consider is not None:
+            # Schmidt-Kalman: "consider" states keep their value (zero gain) and their uncertainty.
+            # The Joseph form with that gain equals the optimal update plus K_c S K_c^T on their block.
+            c = self.consider
+            P[c, c] += PHt[c] @ gain[c].T       # K_c S K_c^T = (P H^T)_c S^-1 (P H^T)_c^T
+            gain[c] = 0.0
         dx = gain @ innovation
         dtheta = dx[THETA]
         if abs(dtheta[0]) + abs(dtheta[1]) + abs(dtheta[2]) > RESET_THRESHOLD:
@@ -127,8 +128,6 @@ class EkfEstimator(FusionEstimator):
             G = I3 - skew(0.5 * dtheta)
             P[THETA, :] = G @ P[THETA, :]
             P[:, THETA] = P[:, THETA] @ G.T
-        P += P.T
-        P *= 0.5
-        self.P = P
-        self.state = inject(self.state, dx)
+        self.P = P      # symmetrised once per IMU sample, in _predict
+        inject_in_place(self.state, dx)
         self._record_tilt_correction(dtheta, gain[THETA] @ PHt[THETA].T)

@@ -132,6 +132,16 @@ def reset_jacobian(dtheta: np.ndarray) -> np.ndarray:
     return jacobian
 
 
+def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
+    """inject, modifying `state` (the EKF's hot path)."""
+    state.q = rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2])
+    state.bias = state.bias + dx[BIAS]
+    state.velocity = state.velocity + dx[VEL]
+    state.accel = state.accel + dx[ACC]
+    state.accel_bias = state.accel_bias + dx[ACCEL_BIAS]
+    state.feet = state.feet + dx[FEET].reshape(NUM_FEET, 3)
+
+
 def inject(state: NominalState, dx: np.ndarray) -> NominalState:
     """x_true = x (+) dx (Sola 2017, section 6.2)."""
     return NominalState(rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2]), state.bias + dx[BIAS],
@@ -165,13 +175,13 @@ class BiasStepDetector:
         self._sum += correction
         self._covariance += covariance
 
-    def check(self, t: float, up: np.ndarray) -> bool:
-        """At the end of each window: True when the bias moved."""
+    def check(self, t: float, q: rot.Quaternion) -> bool:
+        """At the end of each window: True when the bias moved (q: the current attitude)."""
         if self._start is None:
             self._start = t
         if t - self._start < self.window:
             return False
-        basis = horizontal_basis(up)
+        basis = horizontal_basis(np.array(rot.up_in_body(q)))
         drift = basis @ self._sum
         covariance = basis @ self._covariance @ basis.T
         moved = bool(np.linalg.det(covariance) > 0 and drift @ np.linalg.solve(covariance, drift) > self.threshold)
@@ -249,9 +259,8 @@ class FusionEstimator(Estimator):
         self._last_gyro = gyro_now
         if accel is not None and self._last_dt > 0:
             self._specific_force_update(t, accel)
-        up = np.array(rot.up_in_body(self.state.q))
-        if self.bias_steps.check(t, up):
-            self._open_bias(up)
+        if self.bias_steps.check(t, self.state.q):
+            self._open_bias(np.array(rot.up_in_body(self.state.q)))
         return self._estimate(t)
 
     def _open_bias(self, up: np.ndarray) -> None:

@@ -141,15 +141,10 @@ class UkfEstimator(FusionEstimator):
             self.ukf.x, self.ukf.P = prior_x, prior_P
             return False, nis
         if self.consider is not None:
-            # Schmidt-Kalman, as in the EKF: with P_xz = K S, P = P - K P_xz^T - P_xz K^T + K S K^T.
-            optimal, S = self.ukf.K, self.ukf.S
-            cross_covariance = optimal @ S
-            gain = optimal.copy()
-            gain[self.consider] = 0.0
-            KPxz = gain @ cross_covariance.T
-            self.ukf.x = prior_x + gain @ self.ukf.y
-            self.ukf.P = prior_P - KPxz - KPxz.T + gain @ S @ gain.T
-            self.ukf.K = gain
+            # Schmidt-Kalman, as in the EKF: keep the consider states and their variance.
+            c = self.consider
+            self.ukf.P[c, c] += self.ukf.K[c] @ self.ukf.S @ self.ukf.K[c].T
+            self.ukf.x[c] = prior_x[c]
         gain = self.ukf.K[THETA]
         self._record_tilt_correction(self.ukf.x[THETA].copy(), gain @ self.ukf.S @ gain.T)
         self._reset()
