@@ -11,26 +11,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from testbed.errors import ConfigError
+from testbed.validation import non_negative, positive, require
 
 ESTIMATOR_NAMES = ("ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")    # estimators.registry
 
 
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ConfigError(message)
 
 
-def _positive(where: str, value: float) -> None:
-    _require(math.isfinite(value) and value > 0, f"{where} must be a positive finite number, got {value}")
 
 
-def _non_negative(where: str, value: float) -> None:
-    _require(math.isfinite(value) and value >= 0, f"{where} must be a finite number >= 0, got {value}")
 
 
 def _probability(where: str, value: float) -> None:
-    _require(math.isfinite(value) and 0.5 <= value < 1.0, f"{where} must lie in [0.5, 1), got {value}")
+    require(math.isfinite(value) and 0.5 <= value < 1.0, f"{where} must lie in [0.5, 1), got {value}")
 
 
 @dataclass(frozen=True)
@@ -66,15 +59,15 @@ class FusionConfig:
                      "body_accel_time_constant", "initial_tilt_std_deg", "initial_yaw_std_deg",
                      "initial_velocity_std", "accel_inflation_scale", "gate_recovery_time",
                      "foot_position_std", "foot_slip_std", "bias_fault_window", "bias_fault_std"):
-            _positive(f"estimators.ekf.{name}", getattr(self, name))
-        _non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)
-        _non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
-        _non_negative("estimators.ekf.accel_inflation_deadband", self.accel_inflation_deadband)
-        _non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
+            positive(f"estimators.ekf.{name}", getattr(self, name))
+        non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)
+        non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
+        non_negative("estimators.ekf.accel_inflation_deadband", self.accel_inflation_deadband)
+        non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
         _probability("estimators.ekf.accel_gate_probability", self.accel_gate_probability)
         _probability("estimators.ekf.foot_gate_probability", self.foot_gate_probability)
         _probability("estimators.ekf.bias_fault_probability", self.bias_fault_probability)
-        _require(self.initial_tilt_std_deg <= 90 and self.initial_yaw_std_deg <= 90,
+        require(self.initial_tilt_std_deg <= 90 and self.initial_yaw_std_deg <= 90,
                  "estimators.ekf initial attitude std must not exceed 90 deg")
 
 
@@ -86,8 +79,8 @@ class TerrainEstimatorConfig:
     change_gate_probability: float     # chi-square (3 dof): beyond it the filter restarts on the new plane
 
     def __post_init__(self) -> None:
-        _positive("estimators.terrain.slope_random_walk", self.slope_random_walk)
-        _positive("estimators.terrain.height_random_walk", self.height_random_walk)
+        positive("estimators.terrain.slope_random_walk", self.slope_random_walk)
+        positive("estimators.terrain.height_random_walk", self.height_random_walk)
         _probability("estimators.terrain.change_gate_probability", self.change_gate_probability)
 
 
@@ -100,11 +93,11 @@ class UkfConfig:
     max_yaw_std_deg: float             # sigma points must stay within +-180 deg of the mean
 
     def __post_init__(self) -> None:
-        _require(math.isfinite(self.alpha) and 0 < self.alpha <= 1, f"estimators.ukf.alpha must lie in (0, 1], "
+        require(math.isfinite(self.alpha) and 0 < self.alpha <= 1, f"estimators.ukf.alpha must lie in (0, 1], "
                                                                      f"got {self.alpha}")
-        _non_negative("estimators.ukf.beta", self.beta)
-        _non_negative("estimators.ukf.kappa", self.kappa)
-        _require(math.isfinite(self.max_yaw_std_deg) and 0 < self.max_yaw_std_deg <= 45,
+        non_negative("estimators.ukf.beta", self.beta)
+        non_negative("estimators.ukf.kappa", self.kappa)
+        require(math.isfinite(self.max_yaw_std_deg) and 0 < self.max_yaw_std_deg <= 45,
                  f"estimators.ukf.max_yaw_std_deg must lie in (0, 45], got {self.max_yaw_std_deg}")
 
 
@@ -113,7 +106,7 @@ class ComplementaryConfig:
     time_constant: float               # s: the accelerometer is trusted below 1 / (2 pi tau) Hz
 
     def __post_init__(self) -> None:
-        _positive("estimators.complementary.time_constant", self.time_constant)
+        positive("estimators.complementary.time_constant", self.time_constant)
 
 
 @dataclass(frozen=True)
@@ -121,7 +114,7 @@ class MadgwickConfig:
     gain: float                        # beta of Madgwick 2010, rad/s
 
     def __post_init__(self) -> None:
-        _positive("estimators.madgwick.gain", self.gain)
+        positive("estimators.madgwick.gain", self.gain)
 
 
 @dataclass(frozen=True)
@@ -130,8 +123,8 @@ class MahonyConfig:
     k_i: float                         # 1/s^2
 
     def __post_init__(self) -> None:
-        _positive("estimators.mahony.k_p", self.k_p)
-        _non_negative("estimators.mahony.k_i", self.k_i)
+        positive("estimators.mahony.k_p", self.k_p)
+        non_negative("estimators.mahony.k_i", self.k_i)
 
 
 @dataclass(frozen=True)
@@ -141,7 +134,7 @@ class VqfConfig:
     rest_bias_estimation: bool
 
     def __post_init__(self) -> None:
-        _positive("estimators.vqf.tau_acc", self.tau_acc)
+        positive("estimators.vqf.tau_acc", self.tau_acc)
 
 
 @dataclass(frozen=True)

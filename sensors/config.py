@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sensors.faults import Fault, parse_fault
-from testbed.errors import ConfigError
+from testbed.validation import non_negative, require
 
 ACCEL_ARRAY_LAYOUTS = ("imu_only", "quad", "custom")
 # The "quad" layout: four accelerometers near the corners of the top plate of the 0.20 x 0.15 x
@@ -24,9 +24,6 @@ QUAD_POSITIONS = ((0.08, 0.06, 0.02), (-0.08, 0.06, 0.02), (-0.08, -0.06, 0.02),
 MAX_RATE = 10_000.0    # Hz
 
 
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ConfigError(message)
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:
@@ -36,16 +33,14 @@ def _read_only(array: np.ndarray) -> np.ndarray:
 
 
 def _check_rate(name: str, rate: float) -> None:
-    _require(math.isfinite(rate) and 0 < rate <= MAX_RATE, f"{name} must lie in (0, {MAX_RATE:g}] Hz, got {rate}")
+    require(math.isfinite(rate) and 0 < rate <= MAX_RATE, f"{name} must lie in (0, {MAX_RATE:g}] Hz, got {rate}")
 
 
-def _check_non_negative(name: str, value: float) -> None:
-    _require(math.isfinite(value) and value >= 0, f"{name} must be a finite number >= 0, got {value}")
 
 
 def _check_vector(name: str, values: tuple[float, ...], length: int) -> None:
-    _require(len(values) == length, f"{name} needs {length} numbers, got {len(values)}")
-    _require(all(math.isfinite(v) for v in values), f"{name} must be finite, got {list(values)}")
+    require(len(values) == length, f"{name} needs {length} numbers, got {len(values)}")
+    require(all(math.isfinite(v) for v in values), f"{name} must be finite, got {list(values)}")
 
 
 @dataclass(frozen=True)
@@ -63,14 +58,14 @@ class InertialAxesConfig:
     def check(self, where: str) -> None:
         """Validate, naming the table (`where`) in the message: the same class serves accel and gyro."""
         for name in ("noise_density", "bias_instability", "rate_random_walk", "turn_on_bias"):
-            _check_non_negative(f"{where}.{name}", getattr(self, name))
-        _require(math.isfinite(self.scale_factor) and 0 <= self.scale_factor <= 0.1,
+            non_negative(f"{where}.{name}", getattr(self, name))
+        require(math.isfinite(self.scale_factor) and 0 <= self.scale_factor <= 0.1,
                  f"{where}.scale_factor must lie in [0, 0.1], got {self.scale_factor}")
-        _require(math.isfinite(self.misalignment) and 0 <= self.misalignment <= 0.1,
+        require(math.isfinite(self.misalignment) and 0 <= self.misalignment <= 0.1,
                  f"{where}.misalignment must lie in [0, 0.1] rad, got {self.misalignment}")
-        _require(math.isfinite(self.range) and self.range > 0,
+        require(math.isfinite(self.range) and self.range > 0,
                  f"{where}.range must be a positive finite number, got {self.range}")
-        _require(4 <= self.bits <= 32, f"{where}.bits must lie in [4, 32], got {self.bits}")
+        require(4 <= self.bits <= 32, f"{where}.bits must lie in [4, 32], got {self.bits}")
 
     @property
     def lsb(self) -> float:
@@ -88,7 +83,7 @@ class ImuConfig:
     def __post_init__(self) -> None:
         _check_rate("sensors.imu.rate", self.rate)
         _check_vector("sensors.imu.position", self.position, 3)
-        _require(all(abs(v) <= 1.0 for v in self.position), "sensors.imu.position must lie within 1 m of the body origin")
+        require(all(abs(v) <= 1.0 for v in self.position), "sensors.imu.position must lie within 1 m of the body origin")
         _check_vector("sensors.imu.rpy_deg", self.rpy_deg, 3)
         self.accel.check("sensors.imu.accel")
         self.gyro.check("sensors.imu.gyro")
@@ -108,12 +103,12 @@ class AccelArrayConfig:
     rate: float                             # Hz
 
     def __post_init__(self) -> None:
-        _require(self.layout in ACCEL_ARRAY_LAYOUTS,
+        require(self.layout in ACCEL_ARRAY_LAYOUTS,
                  f"unknown sensors.accel_array.layout '{self.layout}' (choose from {', '.join(ACCEL_ARRAY_LAYOUTS)})")
         if self.layout == "custom":
-            _require(1 <= len(self.positions) <= 64, "sensors.accel_array.positions needs 1 to 64 [x, y, z] points")
+            require(1 <= len(self.positions) <= 64, "sensors.accel_array.positions needs 1 to 64 [x, y, z] points")
         else:
-            _require(not self.positions, f"sensors.accel_array.positions is only for layout 'custom', not '{self.layout}'")
+            require(not self.positions, f"sensors.accel_array.positions is only for layout 'custom', not '{self.layout}'")
         for i, point in enumerate(self.positions):
             _check_vector(f"sensors.accel_array.positions[{i}]", point, 3)
         _check_rate("sensors.accel_array.rate", self.rate)
@@ -132,8 +127,8 @@ class EncoderConfig:
     rate: float                 # Hz
 
     def __post_init__(self) -> None:
-        _require(4 <= self.bits <= 24, f"sensors.encoder.bits must lie in [4, 24], got {self.bits}")
-        _check_non_negative("sensors.encoder.noise", self.noise)
+        require(4 <= self.bits <= 24, f"sensors.encoder.bits must lie in [4, 24], got {self.bits}")
+        non_negative("sensors.encoder.noise", self.noise)
         _check_rate("sensors.encoder.rate", self.rate)
 
     @property
@@ -151,10 +146,10 @@ class FootConfig:
 
     def __post_init__(self) -> None:
         _check_rate("sensors.foot.rate", self.rate)
-        _check_non_negative("sensors.foot.noise", self.noise)
-        _require(math.isfinite(self.full_scale) and self.full_scale > 0,
+        non_negative("sensors.foot.noise", self.noise)
+        require(math.isfinite(self.full_scale) and self.full_scale > 0,
                  f"sensors.foot.full_scale must be a positive finite number, got {self.full_scale}")
-        _require(math.isfinite(self.contact_on) and math.isfinite(self.contact_off)
+        require(math.isfinite(self.contact_on) and math.isfinite(self.contact_off)
                  and 0 <= self.contact_off < self.contact_on < self.full_scale,
                  "sensors.foot thresholds must satisfy 0 <= contact_off < contact_on < full_scale, "
                  f"got contact_off={self.contact_off}, contact_on={self.contact_on}")
@@ -171,7 +166,7 @@ class SensorsConfig:
     def __post_init__(self) -> None:
         members = len(self.accel_array.member_positions)
         for fault in self.parsed_faults:
-            _require(fault.member is None or fault.member < members,
+            require(fault.member is None or fault.member < members,
                      f"fault '{fault.spec}': accel_array has {members} member(s) with layout '{self.accel_array.layout}'")
 
     @cached_property

@@ -21,6 +21,7 @@ import tomli_w
 from estimators.config import EstimatorsConfig
 from sensors.config import SensorsConfig
 from testbed.errors import ConfigError
+from testbed.validation import finite, positive, require
 
 TERRAINS = ("flat", "slope", "step", "rough")
 CONTACTS = ("compliant", "dart")
@@ -29,19 +30,10 @@ ESTIMATORS = ("none", "ekf", "ukf", "complementary", "madgwick", "mahony", "vqf"
 CONTROLLERS = ("none",)
 
 
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ConfigError(message)
 
 
-def _finite_positive(name: str, *values: float) -> None:
-    for value in values:
-        _require(math.isfinite(value) and value > 0, f"{name} must be a positive finite number, got {value}")
 
 
-def _finite(name: str, *values: float) -> None:
-    for value in values:
-        _require(math.isfinite(value), f"{name} must be finite, got {value}")
 
 
 @dataclass(frozen=True)
@@ -57,19 +49,19 @@ class RunConfig:
     gravity: float
 
     def __post_init__(self) -> None:
-        _require(self.terrain in TERRAINS, f"unknown terrain '{self.terrain}' (choose from {', '.join(TERRAINS)})")
-        _require(self.contact in CONTACTS, f"unknown contact model '{self.contact}' (choose from {', '.join(CONTACTS)})")
-        _require(self.gait in GAITS, f"unknown gait '{self.gait}' (choose from {', '.join(GAITS)})")
-        _require(self.estimator in ESTIMATORS,
+        require(self.terrain in TERRAINS, f"unknown terrain '{self.terrain}' (choose from {', '.join(TERRAINS)})")
+        require(self.contact in CONTACTS, f"unknown contact model '{self.contact}' (choose from {', '.join(CONTACTS)})")
+        require(self.gait in GAITS, f"unknown gait '{self.gait}' (choose from {', '.join(GAITS)})")
+        require(self.estimator in ESTIMATORS,
                  f"unknown estimator '{self.estimator}' (choose from {', '.join(ESTIMATORS)})")
-        _require(self.controller in CONTROLLERS,
+        require(self.controller in CONTROLLERS,
                  f"unknown controller '{self.controller}' (choose from {', '.join(CONTROLLERS)})")
-        _finite_positive("run.duration", self.duration)
-        _require(self.duration <= 24 * 3600, f"run.duration {self.duration} s is longer than a day")
-        _require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
-        _finite_positive("run.time_step", self.time_step)
-        _require(self.time_step <= 0.01, f"run.time_step {self.time_step} s is too coarse for contact (max 0.01)")
-        _finite_positive("run.gravity", self.gravity)
+        positive("run.duration", self.duration)
+        require(self.duration <= 24 * 3600, f"run.duration {self.duration} s is longer than a day")
+        require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
+        positive("run.time_step", self.time_step)
+        require(self.time_step <= 0.01, f"run.time_step {self.time_step} s is too coarse for contact (max 0.01)")
+        positive("run.gravity", self.gravity)
 
 
 @dataclass(frozen=True)
@@ -96,23 +88,23 @@ class RobotConfig:
     stance_height: float
 
     def __post_init__(self) -> None:
-        _require(len(self.body_size) == 3, "robot.body_size needs 3 numbers")
-        _require(len(self.coxa_size) == 3, "robot.coxa_size needs 3 numbers")
-        _require(len(self.femur_section) == 2, "robot.femur_section needs 2 numbers")
-        _require(len(self.leg_base_angle_deg) == 6, "robot.leg_base_angle_deg needs 6 numbers (one per leg)")
-        _require(len(self.leg_base_distance) == 6, "robot.leg_base_distance needs 6 numbers (one per leg)")
-        _require(len(self.joint_lower_deg) == 3 and len(self.joint_upper_deg) == 3,
+        require(len(self.body_size) == 3, "robot.body_size needs 3 numbers")
+        require(len(self.coxa_size) == 3, "robot.coxa_size needs 3 numbers")
+        require(len(self.femur_section) == 2, "robot.femur_section needs 2 numbers")
+        require(len(self.leg_base_angle_deg) == 6, "robot.leg_base_angle_deg needs 6 numbers (one per leg)")
+        require(len(self.leg_base_distance) == 6, "robot.leg_base_distance needs 6 numbers (one per leg)")
+        require(len(self.joint_lower_deg) == 3 and len(self.joint_upper_deg) == 3,
                  "robot.joint_lower_deg and joint_upper_deg need 3 numbers (coxa, femur, tibia)")
-        _finite_positive("robot sizes and masses", self.body_mass, *self.body_size, self.coxa_mass, *self.coxa_size,
+        positive("robot sizes and masses", self.body_mass, *self.body_size, self.coxa_mass, *self.coxa_size,
                          self.femur_length, self.femur_mass, *self.femur_section, self.tibia_length,
                          self.tibia_mass, self.tibia_radius, self.foot_radius, *self.leg_base_distance)
-        _finite_positive("robot servo limits", self.servo_torque_limit, self.servo_speed_limit, self.servo_gain)
-        _finite_positive("robot stance", self.stance_radius, self.stance_height)
-        _finite("robot.leg_base_angle_deg", *self.leg_base_angle_deg)
+        positive("robot servo limits", self.servo_torque_limit, self.servo_speed_limit, self.servo_gain)
+        positive("robot stance", self.stance_radius, self.stance_height)
+        finite("robot.leg_base_angle_deg", *self.leg_base_angle_deg)
         for lower, upper in zip(self.joint_lower_deg, self.joint_upper_deg):
-            _require(math.isfinite(lower) and math.isfinite(upper) and -180 <= lower < upper <= 180,
+            require(math.isfinite(lower) and math.isfinite(upper) and -180 <= lower < upper <= 180,
                      f"robot joint limits must satisfy -180 <= lower < upper <= 180, got [{lower}, {upper}]")
-        _require(self.stance_height > self.foot_radius,
+        require(self.stance_height > self.foot_radius,
                  "robot.stance_height must exceed robot.foot_radius")
 
 
@@ -127,22 +119,22 @@ class TerrainConfig:
     flat_start_radius: float
 
     def __post_init__(self) -> None:
-        _require(math.isfinite(self.slope_deg) and abs(self.slope_deg) <= 45,
+        require(math.isfinite(self.slope_deg) and abs(self.slope_deg) <= 45,
                  f"terrain.slope_deg must lie in [-45, 45], got {self.slope_deg}")
-        _require(math.isfinite(self.step_height) and abs(self.step_height) <= 0.2,
+        require(math.isfinite(self.step_height) and abs(self.step_height) <= 0.2,
                  f"terrain.step_height must lie in [-0.2, 0.2] m, got {self.step_height}")
-        _finite("terrain.step_edge_x", self.step_edge_x)
-        _require(math.isfinite(self.rough_amplitude) and 0 <= self.rough_amplitude <= 0.1,
+        finite("terrain.step_edge_x", self.step_edge_x)
+        require(math.isfinite(self.rough_amplitude) and 0 <= self.rough_amplitude <= 0.1,
                  f"terrain.rough_amplitude must lie in [0, 0.1] m, got {self.rough_amplitude}")
-        _require(math.isfinite(self.rough_cell) and 0.02 <= self.rough_cell <= 2.0,
+        require(math.isfinite(self.rough_cell) and 0.02 <= self.rough_cell <= 2.0,
                  f"terrain.rough_cell must lie in [0.02, 2] m, got {self.rough_cell}")
-        _require(len(self.extent) == 4, "terrain.extent needs 4 numbers: x_min x_max y_min y_max")
-        _finite("terrain.extent", *self.extent)
+        require(len(self.extent) == 4, "terrain.extent needs 4 numbers: x_min x_max y_min y_max")
+        finite("terrain.extent", *self.extent)
         x_min, x_max, y_min, y_max = self.extent
-        _require(x_min < 0 < x_max and y_min < 0 < y_max, "terrain.extent must contain the origin")
-        _require((x_max - x_min) * (y_max - y_min) / self.rough_cell**2 <= 20000,
+        require(x_min < 0 < x_max and y_min < 0 < y_max, "terrain.extent must contain the origin")
+        require((x_max - x_min) * (y_max - y_min) / self.rough_cell**2 <= 20000,
                  "terrain.extent / rough_cell gives more than 20000 blocks")
-        _require(math.isfinite(self.flat_start_radius) and self.flat_start_radius >= 0,
+        require(math.isfinite(self.flat_start_radius) and self.flat_start_radius >= 0,
                  f"terrain.flat_start_radius must be >= 0, got {self.flat_start_radius}")
 
 
@@ -156,14 +148,14 @@ class ContactConfig:
     tangential_damping: float
 
     def __post_init__(self) -> None:
-        _require(math.isfinite(self.friction) and 0 <= self.friction <= 5,
+        require(math.isfinite(self.friction) and 0 <= self.friction <= 5,
                  f"contact.friction must lie in [0, 5], got {self.friction}")
-        _finite_positive("contact.stiffness", self.stiffness)
-        _require(math.isfinite(self.exponent) and 1.0 <= self.exponent <= 2.0,
+        positive("contact.stiffness", self.stiffness)
+        require(math.isfinite(self.exponent) and 1.0 <= self.exponent <= 2.0,
                  f"contact.exponent must lie in [1, 2], got {self.exponent}")
-        _require(math.isfinite(self.damping) and self.damping >= 0, f"contact.damping must be >= 0, got {self.damping}")
-        _finite_positive("contact.tangential_stiffness", self.tangential_stiffness)
-        _require(math.isfinite(self.tangential_damping) and self.tangential_damping >= 0,
+        require(math.isfinite(self.damping) and self.damping >= 0, f"contact.damping must be >= 0, got {self.damping}")
+        positive("contact.tangential_stiffness", self.tangential_stiffness)
+        require(math.isfinite(self.tangential_damping) and self.tangential_damping >= 0,
                  f"contact.tangential_damping must be >= 0, got {self.tangential_damping}")
 
 
@@ -185,17 +177,17 @@ class GaitConfig:
     start_ramp: float
 
     def __post_init__(self) -> None:
-        _finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
-        _require(abs(self.speed) <= 0.5 and abs(self.lateral_speed) <= 0.5,
+        finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
+        require(abs(self.speed) <= 0.5 and abs(self.lateral_speed) <= 0.5,
                  f"gait speeds must lie within +-0.5 m/s, got {self.speed}, {self.lateral_speed}")
-        _require(abs(self.turn_rate) <= 2.0, f"gait.turn_rate must lie within +-2 rad/s, got {self.turn_rate}")
-        _require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
-        _finite("gait.target", *self.target)
-        _finite_positive("gait.target_tolerance", self.target_tolerance)
-        _finite_positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
+        require(abs(self.turn_rate) <= 2.0, f"gait.turn_rate must lie within +-2 rad/s, got {self.turn_rate}")
+        require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
+        finite("gait.target", *self.target)
+        positive("gait.target_tolerance", self.target_tolerance)
+        positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
                          self.max_step_length, self.tripod_period, self.ripple_period, self.wave_period)
-        _require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")
-        _require(math.isfinite(self.still_time) and 0.05 <= self.still_time <= 10,
+        require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")
+        require(math.isfinite(self.still_time) and 0.05 <= self.still_time <= 10,
                  f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
 
     def period(self, gait: str) -> float:
@@ -223,7 +215,7 @@ class Config:
         duty = GAIT_TABLE[self.run.gait][0]
         speed = max(math.hypot(self.gait.speed, self.gait.lateral_speed), self.gait.speed)
         stride = speed * duty * self.gait.period(self.run.gait)
-        _require(stride <= self.gait.max_step_length + 1e-12,
+        require(stride <= self.gait.max_step_length + 1e-12,
                  f"speed {speed:g} m/s needs a {stride * 100:.1f} cm stride with the {self.run.gait} gait, "
                  f"more than gait.max_step_length {self.gait.max_step_length * 100:.1f} cm")
 
