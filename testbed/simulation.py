@@ -84,9 +84,15 @@ class Simulation:
 
     # ----------------------------------------------------------------- set-up
     def _setup_servos(self) -> None:
+        # A DC servo's torque falls linearly from stall to zero at no-load speed: the motor's
+        # back-EMF damping is stall torque / no-load speed (0.43 N m s/rad for the MX-28). DART
+        # applies joint damping implicitly. Without it a loaded middle leg, whose contact spikes
+        # exceed the servo torque, chattered on the ground and slid at 0.58 m/s through its stance.
+        damping = self.config.robot.servo_torque_limit / self.config.robot.servo_speed_limit
         for joint in self.joints:
             joint.setActuatorType(dart.dynamics.ActuatorType.SERVO)
             joint.setLimitEnforcement(True)
+            joint.setDampingCoefficient(0, damping)
 
     def _setup_contact(self) -> None:
         friction = self.config.contact.friction
