@@ -9,6 +9,7 @@ while building the parser, `config_from_mcap` for `run --from`, `recorder_for` b
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import subprocess
 import sys
@@ -17,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from datasets.reader import read_description
-from datasets.recorder import McapRecorder
+from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
 from testbed.config import Config
 from testbed.errors import UserError
 
@@ -61,12 +62,21 @@ def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
 
 
 def default_run_path(config: Config, folder: Path = RUNS_FOLDER) -> Path:
+    """A new `runs/<UTC time>_<terrain>_<estimator>[-N].mcap`. The name is reserved by creating its
+    `.partial` file exclusively: runs started in parallel in the same second (a sweep) would
+    otherwise pick the same name and rename each other's files away."""
+    folder.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     stem = f"{stamp}_{config.run.terrain}_{config.run.estimator}"
-    path, n = folder / f"{stem}.mcap", 1
-    while path.exists():
-        path, n = folder / f"{stem}-{n}.mcap", n + 1
-    return path
+    for n in itertools.count(1):
+        path = folder / (f"{stem}.mcap" if n == 1 else f"{stem}-{n}.mcap")
+        if path.exists():
+            continue
+        try:
+            os.close(os.open(path.with_name(path.name + PARTIAL_SUFFIX), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            continue
+        return path
 
 
 # --- replay, info, view ----------------------------------------------------------------------

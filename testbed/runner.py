@@ -19,7 +19,7 @@ from testbed.kinematics import foot_positions
 from testbed.metrics import RunMetrics
 from testbed.pilot import Pilot
 from testbed.recording import NullRecorder, Recorder, Tick
-from testbed.simulation import Simulation
+from testbed.simulation import FALL_TILT, Simulation
 from testbed.stability import stability_margin, support_polygon
 from testbed.terrain import TERRAIN_STREAM, make_terrain
 
@@ -74,22 +74,22 @@ def run(config: Config, recorder: Recorder | None = None) -> RunOutcome:
     outcome = RunOutcome(metrics={})
     recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
-    try:
+    def tick_once():
+        """Sensors, pilot and recorder after the simulation reached its current state."""
         truth = sim.truth()
         samples = sensors.update(truth)
         command, estimates = pilot.tick(sim.time, samples)
-        tick = make_tick(sim, truth, samples, command, estimates, support)   # t = 0: the first samples
+        tick = make_tick(sim, truth, samples, command, estimates, support)
         metrics.add(tick)
         recorder.record(tick)
+        return command
+
+    try:
+        command = tick_once()       # t = 0: the first samples
         for step in range(steps):
             sim.step(command.joint_targets)
-            truth = sim.truth()
-            samples = sensors.update(truth)
-            command, estimates = pilot.tick(sim.time, samples)
-            tick = make_tick(sim, truth, samples, command, estimates, support)
-            metrics.add(tick)
-            recorder.record(tick)
-            if sim.body_tilt() > np.radians(45.0) or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
+            command = tick_once()
+            if sim.body_tilt() > FALL_TILT or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                 metrics.fell = True
                 break
     except SimulationDiverged as error:

@@ -288,6 +288,3 @@ class Simulation:
     def body_tilt(self) -> float:
         """Angle between the body's z axis and the vertical, rad."""
         return float(np.arccos(np.clip(self.body_transform()[2, 2], -1.0, 1.0)))
-
-    def fallen(self) -> bool:
-        return self.body_tilt() > FALL_TILT or self.body_touches_ground()

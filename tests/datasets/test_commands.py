@@ -119,3 +119,13 @@ def test_after_run_writes_the_rrd_only_when_asked(ekf_run, tmp_path):
     rrd = tmp_path / "r.rrd"
     commands.after_run(parse("run", "--rerun", str(rrd)), path)
     assert rrd.exists()
+
+
+def test_default_run_paths_never_collide_within_one_second(tmp_path):
+    """Parallel runs started in the same second get different files (the .partial is reserved)."""
+    from datasets.commands import default_run_path
+    from testbed import config
+    cfg = config.load()
+    paths = [default_run_path(cfg, tmp_path) for _ in range(3)]
+    assert len(set(paths)) == 3
+    assert all(p.with_name(p.name + ".partial").exists() and not p.exists() for p in paths)

@@ -15,7 +15,8 @@ TESTBED = [sys.executable, "-m", "testbed.cli"]
 
 def test_run_writes_the_foundation_metrics(tmp_path, capsys):
     metrics = tmp_path / "m.json"
-    assert main(["run", "--terrain", "flat", "--duration", "1.5", "--metrics", str(metrics)]) == 0
+    assert main(["run", "--terrain", "flat", "--duration", "1.5", "--metrics", str(metrics),
+                 "--out", str(tmp_path / "r.mcap")]) == 0
     data = json.loads(metrics.read_text())
     for key in ("fell", "weight_support_ratio", "realtime_factor", "sim_steps", "wall_s"):
         assert key in data
@@ -26,7 +27,8 @@ def test_run_writes_the_foundation_metrics(tmp_path, capsys):
 
 def test_walking_run_reports_the_gait_metrics(tmp_path):
     metrics = tmp_path / "m.json"
-    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "3", "--metrics", str(metrics)]) == 0
+    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "3", "--metrics", str(metrics),
+                 "--out", str(tmp_path / "r.mcap")]) == 0
     data = json.loads(metrics.read_text())
     # 0.5 s still, 1 s ramp, then 0.1 m/s: about 0.2 m in 3 s
     assert 0.15 < data["distance_m"] < 0.25
