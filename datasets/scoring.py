@@ -3,7 +3,7 @@
 A live run scores with `testbed.metrics.score_estimates` from the truth of every physics step
 (time, body quaternion and position, foot centres and contacts). The recorder writes exactly those
 numbers, losslessly, at every step (`/truth/pose` and `/truth/feet`), so a replay that calls the
-same function on them, with the same guards, reproduces the live metrics bit for bit.
+same function on them reproduces the live metrics bit for bit.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.base import Estimate
-from estimators.scoring import METRIC_KEYS
 from testbed.config import Config
 from testbed.metrics import score_estimates
 
@@ -29,18 +28,7 @@ class ScoringTruth:
     foot_contact: np.ndarray        # (N, 6) bool
 
 
-def empty_metrics() -> dict:
-    return {key: None for key in METRIC_KEYS}
-
-
 def score_run(config: Config, truth: ScoringTruth, estimates: Sequence[Estimate]) -> dict:
-    """Metrics `estimators.scoring.METRIC_KEYS` of the estimates of `config.run.estimator`; all None
-    when there is nothing to score (no estimator, fewer than two truth steps, or a run shorter
-    than the skipped first second), as `testbed.metrics.RunMetrics.estimator_metrics` does."""
-    if config.run.estimator == "none" or not estimates or len(truth.t) < 2:
-        return empty_metrics()
-    try:
-        return score_estimates(config, truth.t, truth.quaternion, truth.body_position, truth.foot_positions,
-                               truth.foot_contact, list(estimates))
-    except ValueError:      # shorter than the skipped first second
-        return empty_metrics()
+    """Metrics `estimators.scoring.METRIC_KEYS` of the estimates, scored exactly as the live run."""
+    return score_estimates(config, truth.t, truth.quaternion, truth.body_position, truth.foot_positions,
+                           truth.foot_contact, list(estimates))

@@ -60,7 +60,6 @@ class GaitGenerator:
             duty, starts = GAIT_TABLE[name]
             self.duty, self.swing_start = duty, np.asarray(starts)
         self.state = GaitState(self.neutral.copy(), np.zeros(6, bool), self.neutral.copy())
-        self.time = 0.0
         self.stopping = False
 
     @property
@@ -107,5 +106,4 @@ class GaitGenerator:
             path[:, 2] += self.swing_height * np.sin(np.pi * u)
             state.feet[swing] = path
         state.swinging = swing
-        self.time = t
         return state.feet.copy()

@@ -84,26 +84,26 @@ class RunMetrics:
         return metrics
 
     def estimator_metrics(self) -> dict:
-        from estimators.scoring import METRIC_KEYS
-        empty = {key: None for key in METRIC_KEYS}
-        if self.config.run.estimator == "none" or not self.estimates or len(self.truth_t) < 2:
-            return empty
-        try:
-            return score_estimates(self.config, np.array(self.truth_t), np.array(self.truth_quaternion),
-                                   np.array(self.body_position), np.array(self.feet), np.array(self.contact),
-                                   self.estimates)
-        except ValueError:      # shorter than the skipped first second
-            return empty
+        return score_estimates(self.config, np.array(self.truth_t), np.array(self.truth_quaternion),
+                               np.array(self.body_position), np.array(self.feet), np.array(self.contact),
+                               self.estimates)
 
 
 def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,
                     feet: np.ndarray, contact: np.ndarray, estimates: list) -> dict:
     """Estimator metrics of a run from recorded numbers: the one function live runs and replays
-    both call, so a replay of the same estimates scores bit for bit the same."""
-    from estimators.scoring import estimate_arrays, score, support_plane_truth
+    both call, so a replay of the same estimates scores bit for bit the same. All None when there
+    is nothing to score: no estimator, no estimate, fewer than two truth steps, or a run shorter
+    than the skipped first second."""
+    from estimators.scoring import METRIC_KEYS, estimate_arrays, score, support_plane_truth
+    if config.run.estimator == "none" or not estimates or len(truth_t) < 2:
+        return {key: None for key in METRIC_KEYS}
     rotations = Rotation.from_quat(truth_quaternion).as_matrix()
     terrain_truth = support_plane_truth(truth_t, feet, contact, body_position, rotations, config.robot.foot_radius)
-    return score(estimate_arrays(estimates), truth_t, rotations, terrain_truth)
+    try:
+        return score(estimate_arrays(estimates), truth_t, rotations, terrain_truth)
+    except ValueError:      # shorter than the skipped first second
+        return {key: None for key in METRIC_KEYS}
 
 
 def _clean(value):

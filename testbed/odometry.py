@@ -70,10 +70,6 @@ class GyroHeading:
         self._count = 0
         self._last_t: float | None = None
 
-    @property
-    def calibrated(self) -> bool:
-        return self._last_t is not None and self._last_t >= self.calibration_time
-
     def update(self, t: float, yaw_rate: float) -> None:
         if not np.isfinite(yaw_rate):
             return

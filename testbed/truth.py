@@ -31,8 +31,3 @@ class Truth:
     foot_normal_forces: np.ndarray            # (6,) N, component along the terrain normal (>= 0)
     foot_contact: np.ndarray                  # (6,) bool, foot touches the ground
     com_position: np.ndarray                  # (3,) m, world: whole-robot centre of mass
-
-    @property
-    def body_angular_velocity_body(self) -> np.ndarray:
-        """Angular velocity in the body frame (what a body-fixed gyro measures, noise-free)."""
-        return self.body_rotation.T @ self.body_angular_velocity
