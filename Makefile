@@ -12,10 +12,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
-# The main scenario: the tripod gait down the paper's step, the EKF estimating attitude, recorded
-# to MCAP and converted for the Rerun viewer.
+# The main scenario: the tripod gait down the paper's step, the EKF estimating attitude, the posture
+# controller keeping the body level, recorded to MCAP and converted for the Rerun viewer.
 run: $(STAMP)
-	$(BIN)/testbed run --terrain step --gait tripod --estimator ekf --duration 10 \
+	$(BIN)/testbed run --terrain step --gait tripod --estimator ekf --controller posture --duration 10 \
 		--out runs/main.mcap --rerun runs/main.rrd --metrics runs/main_metrics.json
 
 test: $(STAMP)

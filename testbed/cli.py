@@ -89,7 +89,7 @@ def _add_run_parser(subparsers) -> None:
     parser.add_argument("--turn-rate", type=float, help="turning rate, rad/s counter-clockwise")
     parser.add_argument("--target", help="X,Y: walk to this point of the ground (m) and stop")
     parser.add_argument("--estimator", help="none | ekf | ukf | complementary | madgwick | mahony | vqf")
-    parser.add_argument("--controller", help="none")
+    parser.add_argument("--controller", help="none | posture (keeps the body level and at height; needs an estimator)")
     parser.add_argument("--fault", action="append", metavar="SPEC",
                         help="inject a sensor fault, e.g. imu.accel.spike@5s (see docs/sensors.md; repeatable)")
     parser.add_argument("--duration", type=float, help="simulated seconds")

@@ -21,19 +21,13 @@ import tomli_w
 from estimators.config import EstimatorsConfig
 from sensors.config import SensorsConfig
 from testbed.errors import ConfigError
-from testbed.validation import finite, positive, require
+from testbed.validation import finite, non_negative, positive, require
 
 TERRAINS = ("flat", "slope", "step", "rough")
 CONTACTS = ("compliant", "dart")
 GAITS = ("stand", "tripod", "ripple", "wave")   # testbed.gait.GAIT_TABLE holds the walking ones
 ESTIMATORS = ("none", "ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")   # estimators.registry
-CONTROLLERS = ("none",)
-
-
-
-
-
-
+CONTROLLERS = ("none", "posture")   # posture: testbed.posture
 
 
 @dataclass(frozen=True)
@@ -56,6 +50,8 @@ class RunConfig:
                  f"unknown estimator '{self.estimator}' (choose from {', '.join(ESTIMATORS)})")
         require(self.controller in CONTROLLERS,
                  f"unknown controller '{self.controller}' (choose from {', '.join(CONTROLLERS)})")
+        require(self.controller != "posture" or self.estimator != "none",
+                 "controller 'posture' needs an attitude estimator (--estimator ekf, for example)")
         positive("run.duration", self.duration)
         require(self.duration <= 24 * 3600, f"run.duration {self.duration} s is longer than a day")
         require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
@@ -195,6 +191,31 @@ class GaitConfig:
 
 
 @dataclass(frozen=True)
+class PostureConfig:
+    """The posture controller's gains and limits and the gait's terrain adaptation (docs/control.md)."""
+    tilt_kp: float
+    tilt_ki: float
+    height_kp: float
+    height_ki: float
+    max_tilt_correction_deg: float
+    max_height_correction: float
+    walk_plane_time_constant: float
+    search_speed: float
+    search_depth: float
+    touchdown_phase: float
+
+    def __post_init__(self) -> None:
+        non_negative("posture gains", self.tilt_kp, self.tilt_ki, self.height_kp, self.height_ki)
+        require(0 < self.max_tilt_correction_deg <= 30,
+                 f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")
+        require(0 < self.max_height_correction <= 0.08,
+                 f"posture.max_height_correction must lie in (0, 0.08] m, got {self.max_height_correction}")
+        positive("posture timing", self.walk_plane_time_constant, self.search_speed)
+        require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
+        require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")
+
+
+@dataclass(frozen=True)
 class Config:
     run: RunConfig
     robot: RobotConfig
@@ -203,6 +224,7 @@ class Config:
     estimators: EstimatorsConfig
     sensors: SensorsConfig
     gait: GaitConfig
+    posture: PostureConfig
 
     def __post_init__(self) -> None:
         self._check_stride()

@@ -7,6 +7,13 @@ forward speed is a straight line of one step length backwards in the body frame;
 follows the paper's elliptic path (Figure 4) from lift-off to the next touch-down point, half a
 step ahead of its neutral point: horizontally (1 - cos(pi u)) / 2 of the way, vertically
 swing_height * sin(pi u), u the swing phase: an ellipse with semi-axes step/2 and swing_height.
+
+With terrain adaptation (the posture controller's, from the foot contact sensors, never truth):
+a swing aims at the plane of the stance feet instead of the flat ground of the start stance, lands
+where its foot sensor first reports ground in the second part of the swing, and, finding no ground
+where it expected it, keeps reaching down while the gait clock waits, so that no leg lifts before
+the leg it relieves carries weight; the gait frame's height follows the stance feet's plane, so
+the body climbs a slope or steps down a step with the feet.
 """
 
 from __future__ import annotations
@@ -44,13 +51,28 @@ class Twist:
 @dataclass
 class GaitState:
     feet: np.ndarray            # (6, 3) current foot targets, body frame
-    swinging: np.ndarray        # (6,) bool
+    swinging: np.ndarray        # (6,) bool: in the air
     liftoff: np.ndarray         # (6, 3) where each swing began
 
 
+@dataclass(frozen=True)
+class TerrainAdaptation:
+    search_speed: float         # m/s, a foot that found no ground keeps reaching down this fast
+    search_depth: float         # m below the expected ground, the leg's workspace
+    touchdown_phase: float      # contact after this fraction of the swing lands the foot
+    plane_time_constant: float  # s, the gait frame's height follows the stance feet's plane
+
+
 class GaitGenerator:
-    def __init__(self, name: str, neutral: np.ndarray, period: float, swing_height: float):
+    def __init__(self, name: str, neutral: np.ndarray, period: float, swing_height: float,
+                 adaptation: TerrainAdaptation | None = None):
         self.name = name
+        self.adaptation = adaptation
+        self.waited = 0.0           # s the gait clock stood still for feet searching the ground
+        self.scheduled = np.zeros(6, bool)
+        self.search_floor = np.full(6, -np.inf)
+        self.searching = np.zeros(6, bool)     # feet reaching down for ground the clock waits for
+        self.frame_drop = 0.0       # m the ground has moved down in the gait frame (walk-plane following)
         self.neutral = np.asarray(neutral, dtype=float)
         self.period = period
         self.swing_height = swing_height
@@ -84,8 +106,17 @@ class GaitGenerator:
         """Finish the swings under way, then keep every foot down."""
         self.stopping = True
 
-    def step(self, t: float, dt: float, command: Twist) -> np.ndarray:
-        """Advance to time t; returns (6, 3) foot targets in the body frame."""
+    def clock(self, t: float) -> float:
+        """Gait time at run time t: the time spent waiting for the ground does not count."""
+        return t - self.waited
+
+    def step(self, t: float, dt: float, command: Twist, contact: np.ndarray | None = None,
+             measured: np.ndarray | None = None) -> np.ndarray:
+        """Advance to time t; returns (6, 3) foot targets in the body frame. The terrain adaptation
+        uses `contact` (the foot sensors) and `measured`, the feet where the joint encoders put them
+        (gait frame): a foot lands where it touched, not where its lagging target had got to."""
+        if self.adaptation is not None:
+            return self._adaptive_step(t, dt, command, np.asarray(contact, dtype=bool), measured)
         state = self.state
         swing = self.scheduled_swing(t)
         if self.stopping:
@@ -93,17 +124,88 @@ class GaitGenerator:
         lifting = swing & ~state.swinging
         landing = state.swinging & ~swing
         state.liftoff[lifting] = state.feet[lifting]
-        touchdown = self.neutral + 0.5 * self.stance_time * command.foot_velocity(self.neutral)
+        touchdown = self._touchdown(command)
         # The last swing tick falls just short of u = 1: a landing foot ends its ellipse first.
         state.feet[landing] = touchdown[landing]
-        stance = ~swing
+        self._move_stance(~swing, command, dt)
+        self._move_swing(t, swing, touchdown)
+        state.swinging = swing
+        return state.feet.copy()
+
+    def _touchdown(self, command: Twist) -> np.ndarray:
+        return self.neutral + 0.5 * self.stance_time * command.foot_velocity(self.neutral)
+
+    def _move_stance(self, stance: np.ndarray, command: Twist, dt: float) -> None:
         # A stance foot is fixed on the ground: in the body frame it moves against the body twist.
-        state.feet[stance] -= command.foot_velocity(state.feet)[stance] * dt
+        self.state.feet[stance] -= command.foot_velocity(self.state.feet)[stance] * dt
+
+    def _move_swing(self, t: float, swing: np.ndarray, touchdown: np.ndarray) -> None:
         if swing.any():
+            state = self.state
             u = self.swing_progress(t)[swing]
             blend = (1.0 - np.cos(np.pi * u)) / 2.0
             path = state.liftoff[swing] + (touchdown[swing] - state.liftoff[swing]) * blend[:, None]
             path[:, 2] += self.swing_height * np.sin(np.pi * u)
             state.feet[swing] = path
-        state.swinging = swing
+
+    # ------------------------------------------------------------ terrain adaptation
+    def _adaptive_step(self, t: float, dt: float, command: Twist, contact: np.ndarray,
+                       measured: np.ndarray | None) -> np.ndarray:
+        state, adaptation = self.state, self.adaptation
+        scheduled = self.scheduled_swing(self.clock(t))
+        if self.stopping:
+            scheduled &= self.scheduled | state.swinging
+        lifting = scheduled & ~self.scheduled
+        progress = self.swing_progress(self.clock(t))
+        # Ground found in the second part of a swing, or at or after its scheduled end: land there.
+        touched = state.swinging & contact & (~scheduled | (progress >= adaptation.touchdown_phase))
+        if measured is not None:
+            state.feet[touched] = measured[touched]
+        state.swinging &= ~touched
+        searching = state.swinging & ~scheduled
+        self.searching = searching
+        if searching.any():
+            self._search(searching, dt)
+            self.waited += dt           # the clock waits: no leg lifts, the body does not move
+            return state.feet.copy()
+        state.liftoff[lifting] = state.feet[lifting]
+        state.swinging |= lifting
+        self.scheduled = scheduled
+        touchdown = self._touchdown(command)
+        touchdown[:, 2] = self._walk_plane_height(touchdown[:, :2])
+        self._move_stance(~state.swinging, command, dt)
+        self._move_swing(self.clock(t), state.swinging & scheduled, touchdown)
+        self.search_floor[state.swinging] = touchdown[state.swinging, 2] - adaptation.search_depth
+        self._follow_walk_plane(dt)
         return state.feet.copy()
+
+    def _search(self, searching: np.ndarray, dt: float) -> None:
+        """Lower the feet that found no ground; one that reaches the bottom of its workspace
+        lands there (the posture controller and the stance feet carry the body)."""
+        feet = self.state.feet
+        feet[searching, 2] = np.maximum(feet[searching, 2] - self.adaptation.search_speed * dt,
+                                        self.search_floor[searching])
+        bottomed = searching & (feet[:, 2] <= self.search_floor)
+        self.state.swinging &= ~bottomed
+
+    def _walk_plane_height(self, xy: np.ndarray) -> np.ndarray:
+        """Height of the stance feet's least-squares plane at xy (gait frame); the neutral stance's
+        height with fewer than three stance feet."""
+        stance = ~self.state.swinging
+        if stance.sum() < 3:
+            return np.full(len(xy), self.neutral[:, 2].mean())
+        feet = self.state.feet[stance]
+        design = np.column_stack([np.ones(len(feet)), feet[:, :2]])
+        coefficients, *_ = np.linalg.lstsq(design, feet[:, 2], rcond=None)
+        return coefficients[0] + xy @ coefficients[1:]
+
+    def _follow_walk_plane(self, dt: float) -> None:
+        """Move the gait frame vertically so that the stance feet's plane returns to the neutral
+        stance's height under the body (first order, plane_time_constant): on a slope the body
+        climbs with the feet, after a step it settles on the new level."""
+        offset = self._walk_plane_height(np.zeros((1, 2)))[0] - self.neutral[:, 2].mean()
+        shift = offset * min(1.0, dt / self.adaptation.plane_time_constant)
+        self.state.feet[:, 2] -= shift
+        self.state.liftoff[:, 2] -= shift
+        self.search_floor -= shift
+        self.frame_drop += shift

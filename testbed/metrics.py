@@ -17,17 +17,20 @@ from scipy.spatial.transform import Rotation
 
 from testbed.config import Config
 from testbed.recording import Tick
+from testbed.terrain import Terrain
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
 SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
+POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the first second
 
 
 class RunMetrics:
     """Accumulates the truth-side metrics of a run tick by tick; `summary` adds the estimator's."""
 
-    def __init__(self, config: Config, weight: float):
+    def __init__(self, config: Config, weight: float, terrain: "Terrain"):
         self.config = config
         self.weight = weight
+        self.terrain = terrain
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
         self.fell = False
         self._normal_sum = 0.0
@@ -75,6 +78,7 @@ class RunMetrics:
             "target_error_m": float(np.linalg.norm(self.last_xy - target)) if target else None,
             "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
             "ik_limited_ticks": ik_limited_ticks,
+            **self.posture_metrics(),
             "realtime_factor": sim_time / wall_s if wall_s > 0 else None,
             "sim_steps": int(round(sim_time / self.config.run.time_step)),
             "sim_time_s": sim_time,
@@ -83,10 +87,30 @@ class RunMetrics:
         metrics.update(self.estimator_metrics())
         return metrics
 
+    def posture_metrics(self) -> dict:
+        """True body tilt from level and body height above the terrain under the body centre, minus
+        the commanded height, after the first second."""
+        t = np.array(self.truth_t)
+        keep = t >= POSTURE_SKIP
+        if not keep.any():
+            return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
+        tilt = body_tilt_deg(np.array(self.truth_quaternion)[keep])
+        position = np.array(self.body_position)[keep]
+        height = position[:, 2] - self.terrain.height(position[:, :2])
+        error = height - self.config.robot.stance_height
+        return {"tilt_rms_deg": float(np.sqrt(np.mean(tilt ** 2))), "tilt_max_deg": float(tilt.max()),
+                "height_error_rms_m": float(np.sqrt(np.mean(error ** 2)))}
+
     def estimator_metrics(self) -> dict:
         return score_estimates(self.config, np.array(self.truth_t), np.array(self.truth_quaternion),
                                np.array(self.body_position), np.array(self.feet), np.array(self.contact),
                                self.estimates)
+
+
+def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:
+    """Angle between the body's z axis and the world's vertical, degrees, per (x, y, z, w) quaternion."""
+    body_z_up = Rotation.from_quat(quaternions).as_matrix()[:, 2, 2]
+    return np.degrees(np.arccos(np.clip(body_z_up, -1.0, 1.0)))
 
 
 def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,

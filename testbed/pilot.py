@@ -10,10 +10,11 @@ import numpy as np
 
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.config import Config
-from testbed.gait import GaitGenerator, Twist
-from testbed.kinematics import LegGeometry, UnreachableTarget, inverse_kinematics
+from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
+from testbed.kinematics import LegGeometry, foot_positions, inverse_kinematics_legs
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
+from testbed.posture import PostureController, PostureMeasurement, estimated_height, kinematic_height
 from testbed.recording import Command
 
 
@@ -31,9 +32,16 @@ class Pilot:
         self.dt = config.run.time_step
         # The gait keeps the stance the robot started in (known from its own joint angles): on a
         # slope that is the stance of a level body on that slope.
+        self.posture = None
+        adaptation = None
+        if config.run.controller == "posture":
+            self.posture = PostureController(config.posture, self.dt, height_reference=config.robot.stance_height)
+            adaptation = terrain_adaptation(config)
         self.gait = GaitGenerator(config.run.gait, start_feet, config.gait.period(config.run.gait),
-                                  config.gait.swing_height)
+                                  config.gait.swing_height, adaptation)
         self.joint_targets = np.array(start_joints, dtype=float)
+        self.encoder_positions = np.array(start_joints, dtype=float)
+        self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry)
         self.heading = GyroHeading(config.gait.still_time)
@@ -42,19 +50,48 @@ class Pilot:
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
+        self.ik_limited_last = False
 
-    def tick(self, t: float, samples: list[Sample]) -> tuple[Command, list]:
+    def tick(self, t: float, samples: list[Sample], attitude: tuple[float, float] | None = None) -> tuple[Command, list]:
+        """One control tick. `attitude` (roll, pitch) replaces the estimator's in the posture
+        loop: a test-only switch that feeds ground truth, to tell the estimator's share of the
+        posture error from the controller's."""
         estimates = self._absorb(samples)
         twist = self._twist(t)
+        gait_time = t - self.config.gait.still_time
         if self._walking(t):
-            feet = self.gait.step(t - self.config.gait.still_time, self.dt, twist)
+            feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
             feet = self.gait.state.feet.copy()
+        if self.posture is not None:
+            # The loops engage once the estimator had the still start-up to settle on gravity.
+            if t >= self.config.gait.still_time:
+                self.posture.update(self._posture_measurement(attitude), hold=self.ik_limited_last)
+            feet = self.posture.apply(feet)
         self._solve_ik(feet)
-        command = Command(t=t, phase=self.gait.phase(t), swinging=self.gait.state.swinging.copy(),
+        command = Command(t=t, phase=self.gait.phase(self.gait.clock(gait_time)), swinging=self.gait.state.swinging.copy(),
                           foot_targets=feet, joint_targets=self.joint_targets.copy(),
                           body_twist=np.array([twist.vx, twist.vy, twist.wz]))
         return command, estimates
+
+    def _measured_feet(self) -> np.ndarray | None:
+        """The feet where the encoders put them, in the gait frame (terrain adaptation only)."""
+        if self.posture is None:
+            return None
+        return self.posture.to_gait_frame(foot_positions(self.geometry, self.encoder_positions))
+
+    def _posture_measurement(self, attitude: tuple[float, float] | None) -> PostureMeasurement | None:
+        estimate = self.latest_estimate
+        if estimate is None:
+            return None
+        roll, pitch = attitude if attitude is not None else (estimate.roll, estimate.pitch)
+        if estimate.body_height is not None:
+            height = estimated_height(estimate.body_height, estimate.terrain_roll, estimate.terrain_pitch)
+        else:
+            stance = self.foot_contact & ~self.gait.state.swinging
+            height = kinematic_height(self.geometry, self.encoder_positions, stance, roll, pitch,
+                                      self.config.robot.foot_radius)
+        return PostureMeasurement(roll, pitch, height)
 
     def _absorb(self, samples: list[Sample]) -> list:
         estimates = []
@@ -63,11 +100,13 @@ class Pilot:
                 estimate = self.estimator.update(sample)
                 if estimate is not None:
                     estimates.append(estimate)
+                    self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
                 self.heading.update(sample.t, float(self.imu_to_body_z @ sample.gyro))
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):
+                self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(np.asarray(sample.positions), stance, self.heading.yaw)
         return estimates
@@ -95,10 +134,13 @@ class Pilot:
     def _solve_ik(self, feet: np.ndarray) -> None:
         """Joint targets for the foot targets; a leg whose target is out of reach keeps its last
         joint targets (the body gives way rather than the leg overreaching), and the tick counts."""
-        limited = False
-        for leg in range(6):
-            try:
-                self.joint_targets[3 * leg:3 * leg + 3] = inverse_kinematics(self.geometry, leg, feet[leg])
-            except UnreachableTarget:
-                limited = True
+        self.joint_targets, reachable = inverse_kinematics_legs(self.geometry, feet, self.joint_targets)
+        limited = not reachable.all()
+        self.ik_limited_last = limited
         self.ik_limited_ticks += limited
+
+
+def terrain_adaptation(config: Config) -> TerrainAdaptation:
+    posture = config.posture
+    return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
+                             posture.walk_plane_time_constant)

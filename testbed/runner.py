@@ -62,13 +62,21 @@ def make_tick(sim: Simulation, truth, samples, command, estimates, support: Supp
                 samples=samples, estimates=estimates, command=command)
 
 
-def run(config: Config, recorder: Recorder | None = None) -> RunOutcome:
-    """Simulate `config` for its duration; the metrics come back even when the run stops early."""
+def true_roll_pitch(truth) -> tuple[float, float]:
+    """Roll and pitch (ZYX) of the true body attitude: the test-only attitude for the posture loop."""
+    rotation = truth.body_rotation
+    return float(np.arctan2(rotation[2, 1], rotation[2, 2])), float(-np.arcsin(np.clip(rotation[2, 0], -1.0, 1.0)))
+
+
+def run(config: Config, recorder: Recorder | None = None, truth_attitude: bool = False) -> RunOutcome:
+    """Simulate `config` for its duration; the metrics come back even when the run stops early.
+    `truth_attitude` (tests and benchmarks only) feeds the true roll and pitch to the posture loop
+    in place of the estimator's."""
     recorder = recorder or NullRecorder()
     sim = build_simulation(config)
     sensors = SensorSuite.from_config(config)
     pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
-    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity)
+    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, terrain=sim.terrain)
     support = SupportTracker()
     steps = int(round(config.run.duration / config.run.time_step))
     outcome = RunOutcome(metrics={})
@@ -78,7 +86,7 @@ def run(config: Config, recorder: Recorder | None = None) -> RunOutcome:
         """Sensors, pilot and recorder after the simulation reached its current state."""
         truth = sim.truth()
         samples = sensors.update(truth)
-        command, estimates = pilot.tick(sim.time, samples)
+        command, estimates = pilot.tick(sim.time, samples, true_roll_pitch(truth) if truth_attitude else None)
         tick = make_tick(sim, truth, samples, command, estimates, support)
         metrics.add(tick)
         recorder.record(tick)

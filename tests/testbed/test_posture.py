@@ -1,0 +1,154 @@
+"""Posture controller: PI loops with anti-windup, the foot-target transform, the kinematic height,
+terrain adaptation of the gait, the loop design's margins, and closed-loop runs."""
+
+import math
+
+import numpy as np
+import pytest
+
+from testbed import config
+from testbed.errors import ConfigError
+from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
+from testbed.kinematics import LegGeometry, foot_positions, inverse_kinematics_all, nominal_stance
+from testbed.posture import PiLoop, PostureController, PostureMeasurement, correction_rotation, kinematic_height
+from testbed.runner import run
+
+CFG = config.load()
+GEOM = LegGeometry.from_config(CFG.robot)
+NEUTRAL = nominal_stance(GEOM, CFG.robot.stance_radius, CFG.robot.stance_height, CFG.robot.foot_radius)
+DT = 0.001
+
+
+def test_pi_loop_drives_a_kinematic_plant_to_zero_error():
+    loop = PiLoop(kp=0.5, ki=25.0, dt=DT, limit=0.3)
+    disturbance, body = 0.05, 0.0
+    for _ in range(1000):
+        body = disturbance + loop.update(body)     # the plant's gain is 1: body = disturbance + correction
+    assert abs(body) < 1e-6 and loop.output == pytest.approx(-disturbance, abs=1e-6)
+
+
+def test_pi_loop_saturates_without_winding_up_and_recovers_at_once():
+    loop = PiLoop(kp=0.5, ki=25.0, dt=DT, limit=0.1)
+    for _ in range(5000):                           # an error the output cannot cancel
+        loop.update(1.0)
+    assert loop.output == pytest.approx(-0.1)
+    assert abs(loop.ki * loop.integral) < 0.1 + loop.kp      # the integral stopped near the limit
+    loop.update(-0.01)                              # the error changes sign: the output leaves the limit
+    assert loop.output > -0.1
+
+
+def test_pi_loop_holds_on_nan_and_when_told_to():
+    loop = PiLoop(kp=0.0, ki=10.0, dt=DT, limit=1.0)
+    loop.update(0.2)
+    before = (loop.output, loop.integral)
+    loop.update(float("nan"))
+    assert (loop.output, loop.integral) == before
+    loop.update(0.2, hold=True)
+    assert loop.integral == before[1]
+    assert all(math.isfinite(v) for v in (loop.output, loop.integral))
+
+
+def test_correction_turns_the_body_and_the_inverse_is_exact():
+    controller = PostureController(CFG.posture, DT, CFG.robot.stance_height)
+    controller.roll.output, controller.pitch.output, controller.height.output = 0.05, -0.03, 0.01
+    body = controller.apply(NEUTRAL)
+    assert np.allclose(controller.to_gait_frame(body), NEUTRAL, atol=1e-12)
+    # Feet fixed on the ground: the body frame is the gait frame turned by R and raised by d.
+    rotation = correction_rotation(0.05, -0.03)
+    assert np.allclose(body @ rotation.T + [0, 0, 0.01], NEUTRAL, atol=1e-12)
+    # A positive roll correction lowers the left feet (y > 0) relative to the body: the left side rises.
+    controller.pitch.output = controller.height.output = 0.0
+    lowered = controller.apply(NEUTRAL)[:, 2] - NEUTRAL[:, 2]
+    assert np.all(np.sign(lowered[NEUTRAL[:, 1] > 0.01]) == -1)
+
+
+def test_kinematic_height_of_a_level_stance_and_of_a_tilted_body():
+    joints = inverse_kinematics_all(GEOM, NEUTRAL)
+    stance = np.ones(6, bool)
+    assert kinematic_height(GEOM, joints, stance, 0.0, 0.0, CFG.robot.foot_radius) == pytest.approx(
+        CFG.robot.stance_height, abs=1e-9)
+    # The same body pitched by 5 degrees over the same ground: the feet seen from the body turn.
+    pitch = math.radians(5.0)
+    feet = NEUTRAL @ correction_rotation(0.0, pitch)      # rows R^T p
+    tilted = inverse_kinematics_all(GEOM, feet)
+    assert kinematic_height(GEOM, tilted, stance, 0.0, pitch, CFG.robot.foot_radius) == pytest.approx(
+        CFG.robot.stance_height, abs=1e-6)
+    assert kinematic_height(GEOM, joints, np.array([1, 1, 0, 0, 0, 0], bool), 0, 0, 0.01) is None
+
+
+ADAPT = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=0.3)
+
+
+def walk(gait, ticks, ground_of):
+    """Step the gait over ground whose height under each foot (in the start's frame) is
+    ground_of(tick); the foot sensors report feet at or below it. Returns the feet per tick."""
+    out, airborne = [], []
+    for k in range(ticks):
+        contact = gait.state.feet[:, 2] <= ground_of(k) - gait.frame_drop + 1e-9
+        out.append(gait.step((k + 1) * DT, DT, Twist(vx=0.1), contact, gait.state.feet.copy()))
+        airborne.append(gait.searching.copy())
+    walk.searching = np.array(airborne)
+    return np.array(out)
+
+
+def ground_at(depth):
+    """Ground `depth` below the neutral stance under legs 1 and 6 (the front), level elsewhere."""
+    floor = NEUTRAL[:, 2] - np.array([depth, 0, 0, 0, 0, depth])
+    return lambda k: floor
+
+
+def test_a_foot_that_finds_no_ground_reaches_down_while_the_gait_clock_waits():
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, ADAPT)
+    feet = walk(gait, 3000, ground_at(0.03))
+    assert gait.waited > 0.2                       # two front feet reaching 3 cm lower at 0.1 m/s
+    # The front legs stand 3 cm lower than planned once they found it, never below the search floor.
+    lowest = feet[:, [0, 5], 2].min(axis=0)
+    assert np.all(lowest > NEUTRAL[[0, 5], 2] - 0.03 - ADAPT.search_depth)
+    # While a foot searches, no other foot moves: the clock and the body wait for it.
+    searching = walk.searching.any(axis=1)
+    assert searching.sum() > 200
+    still = ~walk.searching[1:] & searching[1:, None]
+    assert np.all(np.abs(np.diff(feet, axis=0))[still] < 1e-12)
+
+
+def test_a_foot_that_touches_early_stops_there():
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, ADAPT)
+    feet = walk(gait, 3000, ground_at(-0.02))      # the front ground is 2 cm higher
+    # The front feet land on the higher ground where they touch it and never push below it.
+    front_floor = NEUTRAL[[0, 5], 2] + 0.02
+    assert np.all(feet[-1, [0, 5], 2] - front_floor > -1e-3 - abs(gait.frame_drop))
+    assert np.all(np.diff(feet[:, 0, 2])[np.abs(np.diff(feet[:, 0, 2])) > 0].size > 0)
+
+
+def test_the_gait_frame_follows_the_stance_plane_down_a_step():
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, ADAPT)
+    feet = walk(gait, 6000, lambda k: NEUTRAL[:, 2] - (0.04 if k > 500 else 0.0))
+    # Every foot found the ground 4 cm lower; the walk plane brought the body down with it.
+    assert gait.frame_drop == pytest.approx(-0.04, abs=0.003)
+    stance = ~gait.state.swinging
+    assert feet[-1, stance, 2].mean() == pytest.approx(NEUTRAL[stance, 2].mean(), abs=0.003)
+
+
+@pytest.mark.parametrize("axis", ["roll", "pitch", "height"])
+def test_designed_loops_have_the_required_margins(axis):
+    from testbed.posture_design import analyse
+    report = analyse(CFG, axis)
+    assert 0.8 < report.plant.gain < 1.2 and 0.005 < report.plant.time_constant < 0.05
+    assert report.gain_margin_db >= 6.0 and report.phase_margin_deg >= 45.0
+
+
+def test_posture_needs_an_attitude_estimator():
+    with pytest.raises(ConfigError, match="needs an attitude estimator"):
+        config.load(None, {"run": {"controller": "posture", "estimator": "none"}})
+
+
+@pytest.mark.slow
+def test_stepping_down_with_posture_control_keeps_the_body_level():
+    """The front legs cross the 4 cm step between 2.5 and 4 s: the body stays within 2 degrees."""
+    cfg = config.load(None, {"run": {"terrain": "step", "gait": "tripod", "estimator": "ekf",
+                                     "controller": "posture", "duration": 4.5, "seed": 3}})
+    controlled = run(cfg).metrics
+    uncontrolled = run(cfg.replace(run={"controller": "none"})).metrics
+    assert not controlled["fell"] and controlled["tilt_max_deg"] < 2.0
+    assert uncontrolled["tilt_max_deg"] > 2 * controlled["tilt_max_deg"]
+    assert controlled["ik_limited_ticks"] == 0
