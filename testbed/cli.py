@@ -69,7 +69,9 @@ def _run_overrides(args: argparse.Namespace) -> dict[str, Any]:
             if getattr(args, name) is not None}
     if args.target is not None:
         gait["target"] = _parse_target(args.target)
-        run.setdefault("gait", "tripod")
+    moving = args.target is not None or any(gait.get(name) for name in ("speed", "lateral_speed", "turn_rate"))
+    if moving and "gait" not in run and "gait" not in overrides.get("run", {}) and args.config is None:
+        run["gait"] = "tripod"      # a walking command without a gait walks the paper's tripod, not stand
     if run:
         _deep_update(overrides, {"run": run})
     if gait:

@@ -84,3 +84,16 @@ def test_invalid_toml_file_from_a_real_process(tmp_path):
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1 and "invalid TOML" in result.stderr
     assert not metrics.exists()
+
+
+@pytest.mark.parametrize("argv, gait", [
+    (["run", "--speed", "0.1"], "tripod"),                  # a walking command walks the tripod
+    (["run", "--turn-rate", "0.2"], "tripod"),
+    (["run", "--target", "1,0"], "tripod"),
+    (["run", "--gait", "wave", "--speed", "0.04"], "wave"),
+    (["run", "--speed", "0"], None),                        # no motion asked: the default (stand)
+])
+def test_a_motion_command_without_a_gait_walks_the_tripod(argv, gait):
+    from testbed.cli import _run_overrides, build_parser
+    overrides = _run_overrides(build_parser().parse_args(argv))
+    assert overrides.get("run", {}).get("gait") == gait
