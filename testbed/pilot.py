@@ -43,7 +43,7 @@ class Pilot:
         self.encoder_positions = np.array(start_joints, dtype=float)
         self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
-        self.odometry = LegOdometry(geometry)
+        self.odometry = LegOdometry(geometry, config.robot.foot_radius)
         self.heading = GyroHeading(config.gait.still_time)
         self.heading_reference = 0.0
         self.imu_to_body_z = np.array(config.sensors.imu.body_from_sensor)[2]   # z row of body_from_imu
