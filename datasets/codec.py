@@ -48,6 +48,12 @@ class TerrainBoxes:
     quaternions: np.ndarray      # (N, 4) x, y, z, w, world_from_box
 
 
+# TruthState's array fields, each flattened row-major (foot_contact is bool, the rest float64).
+TRUTH_STATE_ARRAYS = ("body_position", "body_rotation", "body_linear_velocity", "body_angular_velocity",
+                      "body_linear_acceleration", "body_angular_acceleration", "joint_positions", "joint_velocities",
+                      "foot_positions", "foot_forces", "foot_normal_forces", "foot_contact", "com_position")
+
+
 def _floats(values: np.ndarray) -> list[float]:
     return np.asarray(values, dtype=float).ravel().tolist()
 
@@ -68,6 +74,10 @@ class Encoder:
         self._feet = schemas.FeetTruthMsg()
         self._pose = PoseInFrame(frame_id=WORLD_FRAME)
         self._transform = FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME)
+        self._state = schemas.TruthStateMsg()
+        self._contacts = schemas.ContactsMsg()
+        self._support = schemas.SupportMsg()
+        self._command = schemas.CommandMsg()
 
     def sample(self, sample: Sample) -> tuple[str, bytes]:
         """(topic name, message bytes) of one sensor sample."""
@@ -133,36 +143,39 @@ class Encoder:
         o.x, o.y, o.z, o.w = quaternion.tolist()
         return m.SerializeToString()
 
+    def truth_state(self, truth: Truth) -> bytes:
+        m = self._state
+        m.t = truth.t
+        for name in TRUTH_STATE_ARRAYS:
+            getattr(m, name)[:] = getattr(truth, name).ravel().tolist()
+        return m.SerializeToString()
 
-def truth_state_message(truth: Truth) -> bytes:
-    return schemas.TruthStateMsg(
-        t=truth.t, body_position=_floats(truth.body_position), body_rotation=_floats(truth.body_rotation),
-        body_linear_velocity=_floats(truth.body_linear_velocity),
-        body_angular_velocity=_floats(truth.body_angular_velocity),
-        body_linear_acceleration=_floats(truth.body_linear_acceleration),
-        body_angular_acceleration=_floats(truth.body_angular_acceleration),
-        joint_positions=_floats(truth.joint_positions), joint_velocities=_floats(truth.joint_velocities),
-        foot_positions=_floats(truth.foot_positions), foot_forces=_floats(truth.foot_forces),
-        foot_normal_forces=_floats(truth.foot_normal_forces), foot_contact=truth.foot_contact.tolist(),
-        com_position=_floats(truth.com_position)).SerializeToString()
+    def contacts(self, t: float, contacts: FootContacts) -> bytes:
+        m = self._contacts
+        m.t = t
+        m.points[:] = contacts.points.ravel().tolist()
+        m.normals[:] = contacts.normals.ravel().tolist()
+        m.forces[:] = contacts.forces.ravel().tolist()
+        m.normal_forces[:] = contacts.normal_forces.tolist()
+        m.in_contact[:] = contacts.in_contact.tolist()
+        return m.SerializeToString()
 
+    def support(self, t: float, polygon: np.ndarray, com_projection: np.ndarray, margin: float) -> bytes:
+        m = self._support
+        m.t, m.stability_margin = t, float(margin)
+        m.polygon[:] = _floats(polygon)
+        m.com_projection[:] = _floats(com_projection)
+        return m.SerializeToString()
 
-def contacts_message(t: float, contacts: FootContacts) -> bytes:
-    return schemas.ContactsMsg(
-        t=t, points=_floats(contacts.points), normals=_floats(contacts.normals), forces=_floats(contacts.forces),
-        normal_forces=_floats(contacts.normal_forces), in_contact=contacts.in_contact.tolist()).SerializeToString()
-
-
-def support_message(t: float, polygon: np.ndarray, com_projection: np.ndarray, margin: float) -> bytes:
-    return schemas.SupportMsg(t=t, polygon=_floats(polygon), com_projection=_floats(com_projection),
-                              stability_margin=float(margin)).SerializeToString()
-
-
-def command_message(command: Command) -> bytes:
-    return schemas.CommandMsg(
-        t=command.t, phase=_floats(command.phase), swinging=np.asarray(command.swinging, bool).tolist(),
-        foot_targets=_floats(command.foot_targets), joint_targets=_floats(command.joint_targets),
-        body_twist=_floats(command.body_twist)).SerializeToString()
+    def command(self, command: Command) -> bytes:
+        m = self._command
+        m.t = command.t
+        m.phase[:] = _floats(command.phase)
+        m.swinging[:] = np.asarray(command.swinging, bool).tolist()
+        m.foot_targets[:] = _floats(command.foot_targets)
+        m.joint_targets[:] = _floats(command.joint_targets)
+        m.body_twist[:] = _floats(command.body_twist)
+        return m.SerializeToString()
 
 
 def terrain_message(centers: np.ndarray, half_extents: np.ndarray, rotations: np.ndarray, name: str) -> bytes:

@@ -189,16 +189,14 @@ class McapRecorder:
     # --- internals ----------------------------------------------------------------------------
 
     def _record_heavy_truth(self, tick: Tick, t_ns: int) -> None:
-        truth, channels, pending = tick.truth, self._channels, self._pending
+        truth, channels, pending, encoder = tick.truth, self._channels, self._pending, self._encoder
         pending.append((channels[schemas.TF.name], t_ns,
-                        self._encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        pending.append((channels[schemas.TRUTH_STATE.name], t_ns, codec.truth_state_message(truth), 0))
-        pending.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, codec.contacts_message(truth.t, tick.contacts), 0))
+                        encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
+        pending.append((channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0))
+        pending.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0))
         pending.append((channels[schemas.TRUTH_SUPPORT.name], t_ns,
-                        codec.support_message(truth.t, tick.support_polygon, truth.com_position[:2],
-                                              tick.stability_margin), 0))
-        pending.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t),
-                        codec.command_message(tick.command), 0))
+                        encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin), 0))
+        pending.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t), encoder.command(tick.command), 0))
 
     def _write_pending(self, flush: bool) -> None:
         self._dataset.add_many(self._pending, flush)

@@ -30,7 +30,10 @@ class Imu:
 
     def body_values(self, motion: BodyMotion) -> np.ndarray:
         """(6,) noise-free specific force at the IMU point and angular velocity, body frame."""
-        return np.concatenate((motion.specific_force_at(self._position), motion.angular_velocity))
+        values = np.empty(6)
+        values[:3] = motion.specific_force_at(self._position)
+        values[3:] = motion.angular_velocity
+        return values
 
     def samples_at(self, truth: Truth, t: float) -> list[ImuSample]:
         out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))

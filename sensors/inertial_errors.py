@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 from scipy.linalg import block_diag
+from numba import njit
 from scipy.signal import lfilter, sosfilt
 
 from sensors.config import InertialAxesConfig
@@ -120,8 +121,8 @@ class InertialChannels:
         return self.gain @ true_values + self._rows.next()
 
     def digitize(self, raw: np.ndarray) -> np.ndarray:
-        counts = np.minimum(np.maximum(np.rint(raw / self.lsb), self._lowest), self._highest)
-        return counts * self.lsb
+        """Saturated, quantized readings: rint(raw / lsb) clamped to the signed counts, times lsb."""
+        return _digitize(raw.reshape(-1, len(self.lsb)), self.lsb, self._lowest, self._highest).reshape(raw.shape)
 
     def record(self, true_values: np.ndarray, n: int) -> np.ndarray:
         """(n, 3 k) outputs of n samples of constant true values: the same errors and digitizing
@@ -132,3 +133,19 @@ class InertialChannels:
             stop = min(n, start + RECORD_CHUNK)
             out[start:stop] = self.digitize(analog + self.draw(stop - start))
         return out
+
+
+# Compiled: four numpy calls on six values cost ~3 us per IMU sample; the loop ~0.3 us. The same
+# function digitizes the vectorised `record` path, so both paths give identical readings.
+@njit(cache=True)
+def _digitize(raw, lsb, lowest, highest):
+    out = np.empty_like(raw)
+    for row in range(raw.shape[0]):
+        for channel in range(raw.shape[1]):
+            counts = np.rint(raw[row, channel] / lsb[channel])
+            if counts < lowest[channel]:
+                counts = lowest[channel]
+            elif counts > highest[channel]:
+                counts = highest[channel]
+            out[row, channel] = counts * lsb[channel]
+    return out

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 from datasets import commands as dataset_commands
 from testbed import config as config_module
+from testbed import profile as profile_cli
 from testbed.errors import ConfigError, UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -158,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_parser(subparsers)
     _add_export_parser(subparsers)
     dataset_commands.add_subcommands(subparsers)
+    profile_cli.add_subcommands(subparsers)
     return parser
 
 

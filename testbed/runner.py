@@ -68,6 +68,16 @@ def true_roll_pitch(truth) -> tuple[float, float]:
     return float(np.arctan2(rotation[2, 1], rotation[2, 2])), float(-np.arcsin(np.clip(rotation[2, 0], -1.0, 1.0)))
 
 
+def is_interrupt(error: BaseException | None) -> bool:
+    """Ctrl-C, also when it landed in a Python callback of numba-compiled code (numba boxes the
+    arrays a kernel returns through one), which reports it as a SystemError caused by it."""
+    while error is not None:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
+
+
 def run(config: Config, recorder: Recorder | None = None, truth_attitude: bool = False) -> RunOutcome:
     """Simulate `config` for its duration; the metrics come back even when the run stops early.
     `truth_attitude` (tests and benchmarks only) feeds the true roll and pitch to the posture loop
@@ -102,7 +112,9 @@ def run(config: Config, recorder: Recorder | None = None, truth_attitude: bool =
                 break
     except SimulationDiverged as error:
         outcome.error = str(error)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as error:
+        if not is_interrupt(error):
+            raise
         outcome.interrupted = True
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
     wall = time.perf_counter() - start

@@ -101,3 +101,42 @@ def test_same_seed_same_run(contact):
     c = stand("rough", contact, 0.5, seed=12)
     assert np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
     assert not np.array_equal(a[1], c[1])
+
+
+def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypatch):
+    """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
+    comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted."""
+    from testbed import contact
+    from testbed.recording import NullRecorder
+    from testbed.runner import run
+
+    kernel, calls = contact._hard_finger, []
+
+    def interrupted_at_the_50th_step(*args):
+        calls.append(1)
+        if len(calls) == 50:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as interrupt:
+                raise SystemError("<function _numba_unpickle> returned a result with an exception set") from interrupt
+        return kernel(*args)
+
+    monkeypatch.setattr(contact, "_hard_finger", interrupted_at_the_50th_step)
+    finished = []
+    recorder = NullRecorder()
+    monkeypatch.setattr(recorder, "finish", lambda metrics, error: finished.append(error))
+    outcome = run(config.load(overrides={"run": {"duration": 0.2}}), recorder)
+    assert outcome.interrupted and outcome.error == "interrupted at t = 0.049 s"
+    assert finished == [outcome.error] and outcome.metrics["sim_steps"] == 49
+
+
+def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
+    from testbed import contact
+    from testbed.runner import run
+
+    def broken(*args):
+        raise SystemError("something else")
+
+    monkeypatch.setattr(contact, "_hard_finger", broken)
+    with pytest.raises(SystemError, match="something else"):
+        run(config.load(overrides={"run": {"duration": 0.05}}))

@@ -1,11 +1,13 @@
-"""Eq. 2 forward kinematics against DART, closed-form IK round trips, and the Jacobian."""
+"""Eq. 2 forward kinematics against DART, closed-form IK round trips (leg by leg and all legs in
+one compiled call), the Jacobian, and the world-frame feet the simulation reads."""
 
 import numpy as np
 import pytest
 
 from testbed import config
 from testbed.kinematics import (LegGeometry, UnreachableTarget, foot_jacobian, foot_positions,
-                                inverse_kinematics, leg_transform, nominal_stance)
+                                inverse_kinematics, inverse_kinematics_all, inverse_kinematics_legs,
+                                leg_transform, nominal_stance, world_feet)
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset
 from testbed.simulation import load_robot
 
@@ -88,3 +90,104 @@ def test_nominal_stance_is_reachable_with_knees_up():
     for leg in range(6):
         q = inverse_kinematics(GEOM, leg, feet[leg])
         assert q[2] < 0 and abs(q[0]) < 1e-12
+
+
+def reference_inverse_kinematics(leg: int, target: np.ndarray, elbow: str) -> np.ndarray | None:
+    """The closed form written with numpy, independently of testbed.kinematics; None: unreachable."""
+    c0, s0 = np.cos(GEOM.base_angle[leg]), np.sin(GEOM.base_angle[leg])
+    rel = target - GEOM.base_distance[leg] * np.array([c0, s0, 0.0])
+    x0, y0, z0 = c0 * rel[0] + s0 * rel[1], -s0 * rel[0] + c0 * rel[1], rel[2]
+    a2, a3 = GEOM.femur, GEOM.tibia
+    horizontal = np.hypot(x0, y0)
+    cos3 = (horizontal**2 + z0**2 - a2**2 - a3**2) / (2 * a2 * a3)
+    if not -1 <= cos3 <= 1:
+        return None
+    th3 = -np.arccos(cos3) if elbow == "up" else np.arccos(cos3)
+    heading = np.arctan2(y0, x0)
+    wrap = lambda angle: (angle + np.pi) % (2 * np.pi) - np.pi   # noqa: E731
+    for th1, reach in ((heading, horizontal), (wrap(heading + np.pi), -horizontal)):
+        th2 = wrap(np.arctan2(z0, reach) - np.arctan2(a3 * np.sin(th3), a2 + a3 * np.cos(th3)))
+        q = np.array([th1, th2, th3])
+        if np.all((q >= GEOM.lower - 1e-12) & (q <= GEOM.upper + 1e-12)):
+            return q
+    return None
+
+
+def ik_cases(rng: np.random.Generator, count: int) -> list[tuple[np.ndarray, str]]:
+    """Foot target sets: reachable ones from random joints (both elbows, and legs reaching back over
+    the hip, the second shoulder branch), and random points that are often out of reach or past a
+    joint limit."""
+    cases = []
+    for q in random_joint_vectors(rng, count):
+        feet = np.array([leg_transform(GEOM, leg, q[3 * leg:3 * leg + 3])[:3, 3] for leg in range(6)])
+        cases.append((feet, "up" if q[2] < 0 else "down"))
+        stance = nominal_stance(GEOM, CFG.robot.stance_radius, CFG.robot.stance_height, CFG.robot.foot_radius)
+        cases.append((stance + rng.normal(0.0, 0.08, (6, 3)), "up"))
+    return cases
+
+
+def test_all_legs_at_once_give_the_scalar_joints_bit_for_bit():
+    rng = np.random.default_rng(3)
+    seen = {"reachable": 0, "distance": 0, "joint": 0, "second branch": 0}
+    previous = rng.normal(size=18)
+    for feet, elbow in ik_cases(rng, 600):
+        q, reachable = inverse_kinematics_legs(GEOM, feet, previous, elbow)
+        for leg in range(6):
+            angles = q[3 * leg:3 * leg + 3]
+            try:
+                expected = inverse_kinematics(GEOM, leg, feet[leg], elbow)
+            except UnreachableTarget as error:
+                assert not reachable[leg]
+                np.testing.assert_array_equal(angles, previous[3 * leg:3 * leg + 3])   # the fallback
+                seen["distance" if "distance" in error.reason else "joint"] += 1
+                continue
+            assert reachable[leg]
+            np.testing.assert_array_equal(angles, expected)
+            seen["reachable"] += 1
+            local = feet[leg] - GEOM.base_positions[leg]
+            seen["second branch"] += abs(np.cos(angles[0] - GEOM.base_angle[leg] - np.arctan2(local[1], local[0])) + 1) < 1e-6
+    assert min(seen.values()) >= 20, seen
+
+
+def test_inverse_kinematics_agrees_with_an_independent_numpy_version():
+    rng = np.random.default_rng(4)
+    for feet, elbow in ik_cases(rng, 200):
+        q, reachable = inverse_kinematics_legs(GEOM, feet, elbow=elbow)
+        for leg in range(6):
+            expected = reference_inverse_kinematics(leg, feet[leg], elbow)
+            assert reachable[leg] == (expected is not None)
+            if expected is None:
+                assert np.isnan(q[3 * leg:3 * leg + 3]).all()
+            else:
+                np.testing.assert_allclose(q[3 * leg:3 * leg + 3], expected, rtol=0, atol=1e-12)
+
+
+def test_inverse_kinematics_all_names_the_first_unreachable_leg():
+    feet = nominal_stance(GEOM, CFG.robot.stance_radius, CFG.robot.stance_height, CFG.robot.foot_radius)
+    feet[3] += [0.0, 0.0, -0.5]
+    with pytest.raises(UnreachableTarget, match="leg 4: .* distance") as error:
+        inverse_kinematics_all(GEOM, feet)
+    assert error.value.leg == 3
+
+
+def test_world_feet_match_dart_transforms_and_velocities():
+    robot = load_robot(build_urdf(CFG.robot))
+    body = robot.getBodyNode("body")
+    tibias = [robot.getBodyNode(f"{name}_tibia") for name in LEG_NAMES]
+    offset = foot_offset(CFG.robot)
+    rng = np.random.default_rng(5)
+    for q in random_joint_vectors(rng, 20):
+        positions = np.concatenate([rng.normal(size=3) * 0.3, rng.normal(size=3), q])
+        robot.setPositions(positions)
+        robot.setVelocities(rng.normal(size=24))
+        transform = body.getWorldTransform().matrix()
+        rotation, twist = transform[:3, :3], body.getSpatialVelocity()
+        velocities = robot.getVelocities()
+        feet = world_feet(GEOM, rotation, transform[:3, 3], rotation @ twist[:3], rotation @ twist[3:], q, velocities[6:])
+        for leg, tibia in enumerate(tibias):
+            matrix = tibia.getWorldTransform().matrix()
+            np.testing.assert_allclose(feet.tibia_rotations[leg], matrix[:3, :3], atol=1e-12)
+            np.testing.assert_allclose(feet.tibia_origins[leg], matrix[:3, 3], atol=1e-12)
+            np.testing.assert_allclose(feet.centers[leg], matrix[:3, :3] @ offset + matrix[:3, 3], atol=1e-12)
+            np.testing.assert_allclose(feet.velocities[leg], tibia.getLinearVelocity(offset), atol=1e-12)
+            np.testing.assert_allclose(feet.spins[leg], tibia.getAngularVelocity(), atol=1e-12)
