@@ -74,6 +74,7 @@ class GaitGenerator:
         self.searching = np.zeros(6, bool)     # feet reaching down for ground the clock waits for
         self.frame_drop = 0.0       # m the ground has moved down in the gait frame (walk-plane following)
         self.neutral = np.asarray(neutral, dtype=float)
+        self.neutral_height = float(self.neutral[:, 2].mean())
         self.period = period
         self.swing_height = swing_height
         if name == "stand":
@@ -128,7 +129,7 @@ class GaitGenerator:
         # The last swing tick falls just short of u = 1: a landing foot ends its ellipse first.
         state.feet[landing] = touchdown[landing]
         self._move_stance(~swing, command, dt)
-        self._move_swing(t, swing, touchdown)
+        self._move_swing(self.swing_progress(t), swing, touchdown)
         state.swinging = swing
         return state.feet.copy()
 
@@ -139,10 +140,10 @@ class GaitGenerator:
         # A stance foot is fixed on the ground: in the body frame it moves against the body twist.
         self.state.feet[stance] -= command.foot_velocity(self.state.feet)[stance] * dt
 
-    def _move_swing(self, t: float, swing: np.ndarray, touchdown: np.ndarray) -> None:
+    def _move_swing(self, progress: np.ndarray, swing: np.ndarray, touchdown: np.ndarray) -> None:
         if swing.any():
             state = self.state
-            u = self.swing_progress(t)[swing]
+            u = progress[swing]
             blend = (1.0 - np.cos(np.pi * u)) / 2.0
             path = state.liftoff[swing] + (touchdown[swing] - state.liftoff[swing]) * blend[:, None]
             path[:, 2] += self.swing_height * np.sin(np.pi * u)
@@ -152,11 +153,12 @@ class GaitGenerator:
     def _adaptive_step(self, t: float, dt: float, command: Twist, contact: np.ndarray,
                        measured: np.ndarray | None) -> np.ndarray:
         state, adaptation = self.state, self.adaptation
-        scheduled = self.scheduled_swing(self.clock(t))
+        phase = self.phase(self.clock(t))       # once per tick: the controller's time budget is tight
+        scheduled = phase >= self.duty
         if self.stopping:
             scheduled &= self.scheduled | state.swinging
         lifting = scheduled & ~self.scheduled
-        progress = self.swing_progress(self.clock(t))
+        progress = np.clip((phase - self.duty) / (1.0 - self.duty), 0.0, 1.0)
         # Ground found in the second part of a swing, or at or after its scheduled end: land there.
         touched = state.swinging & contact & (~scheduled | (progress >= adaptation.touchdown_phase))
         if measured is not None:
@@ -171,12 +173,13 @@ class GaitGenerator:
         state.liftoff[lifting] = state.feet[lifting]
         state.swinging |= lifting
         self.scheduled = scheduled
+        plane = self._walk_plane()
         touchdown = self._touchdown(command)
-        touchdown[:, 2] = self._walk_plane_height(touchdown[:, :2])
+        touchdown[:, 2] = plane[0] + touchdown[:, :2] @ plane[1:]
         self._move_stance(~state.swinging, command, dt)
-        self._move_swing(self.clock(t), state.swinging & scheduled, touchdown)
+        self._move_swing(progress, state.swinging & scheduled, touchdown)
         self.search_floor[state.swinging] = touchdown[state.swinging, 2] - adaptation.search_depth
-        self._follow_walk_plane(dt)
+        self._follow_walk_plane(plane[0], dt)
         return state.feet.copy()
 
     def _search(self, searching: np.ndarray, dt: float) -> None:
@@ -188,22 +191,23 @@ class GaitGenerator:
         bottomed = searching & (feet[:, 2] <= self.search_floor)
         self.state.swinging &= ~bottomed
 
-    def _walk_plane_height(self, xy: np.ndarray) -> np.ndarray:
-        """Height of the stance feet's least-squares plane at xy (gait frame); the neutral stance's
-        height with fewer than three stance feet."""
+    def _walk_plane(self) -> np.ndarray:
+        """(c0, cx, cy) of the stance feet's least-squares plane z = c0 + cx x + cy y (gait frame);
+        the neutral stance's level with fewer than three stance feet."""
         stance = ~self.state.swinging
         if stance.sum() < 3:
-            return np.full(len(xy), self.neutral[:, 2].mean())
+            return np.array([self.neutral[:, 2].mean(), 0.0, 0.0])
         feet = self.state.feet[stance]
-        design = np.column_stack([np.ones(len(feet)), feet[:, :2]])
-        coefficients, *_ = np.linalg.lstsq(design, feet[:, 2], rcond=None)
-        return coefficients[0] + xy @ coefficients[1:]
+        design = np.ones((len(feet), 3))
+        design[:, 1:] = feet[:, :2]
+        # Normal equations of at most six points: a 3x3 solve, a fifth of lstsq's cost per tick.
+        return np.linalg.solve(design.T @ design, design.T @ feet[:, 2])
 
-    def _follow_walk_plane(self, dt: float) -> None:
+    def _follow_walk_plane(self, plane_height: float, dt: float) -> None:
         """Move the gait frame vertically so that the stance feet's plane returns to the neutral
         stance's height under the body (first order, plane_time_constant): on a slope the body
         climbs with the feet, after a step it settles on the new level."""
-        offset = self._walk_plane_height(np.zeros((1, 2)))[0] - self.neutral[:, 2].mean()
+        offset = plane_height - self.neutral_height
         shift = offset * min(1.0, dt / self.adaptation.plane_time_constant)
         self.state.feet[:, 2] -= shift
         self.state.liftoff[:, 2] -= shift

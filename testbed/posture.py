@@ -52,7 +52,7 @@ class PiLoop:
             self.integral = integral
         else:
             raw = -(self.kp * error + self.ki * self.integral)
-        self.output = float(np.clip(raw, -self.limit, self.limit))
+        self.output = min(max(raw, -self.limit), self.limit)
         return self.output
 
 
@@ -63,6 +63,7 @@ class PostureController:
         self.pitch = PiLoop(config.tilt_kp, config.tilt_ki, dt, limit)
         self.height = PiLoop(config.height_kp, config.height_ki, dt, config.max_height_correction)
         self.height_reference = height_reference
+        self._rotation_key, self._rotation_matrix = (0.0, 0.0), np.eye(3)
 
     def update(self, measurement: PostureMeasurement | None, hold: bool = False) -> None:
         """One control tick. `hold` (the last targets were out of reach) freezes the integrators."""
@@ -78,16 +79,24 @@ class PostureController:
         """(roll rad, pitch rad, height m) of the body relative to the gait frame."""
         return self.roll.output, self.pitch.output, self.height.output
 
+    def _rotation(self) -> np.ndarray:
+        """R of the current correction, rebuilt only when the angles changed (twice per tick)."""
+        key = (self.roll.output, self.pitch.output)
+        if key != self._rotation_key:
+            self._rotation_key, self._rotation_matrix = key, correction_rotation(*key)
+        return self._rotation_matrix
+
     def apply(self, feet: np.ndarray) -> np.ndarray:
         """Gait-frame foot targets (6, 3) -> body-frame targets."""
-        rotation = correction_rotation(self.roll.output, self.pitch.output)
-        shifted = feet - np.array([0.0, 0.0, self.height.output])
-        return shifted @ rotation          # rows: R^T p
+        shifted = feet.copy()
+        shifted[:, 2] -= self.height.output
+        return shifted @ self._rotation()          # rows: R^T p
 
     def to_gait_frame(self, feet: np.ndarray) -> np.ndarray:
         """Body-frame positions (6, 3) -> gait frame: the inverse of `apply`."""
-        rotation = correction_rotation(self.roll.output, self.pitch.output)
-        return feet @ rotation.T + np.array([0.0, 0.0, self.height.output])
+        gait = feet @ self._rotation().T
+        gait[:, 2] += self.height.output
+        return gait
 
 
 def correction_rotation(roll: float, pitch: float) -> np.ndarray:
