@@ -125,7 +125,8 @@ class VqfEstimator(Estimator):
                 return None
             self.filter = VQF(t - self._first[0], tauAcc=self.params.tau_acc,
                               motionBiasEstEnabled=self.params.motion_bias_estimation,
-                              restBiasEstEnabled=self.params.rest_bias_estimation)
+                              restBiasEstEnabled=self.params.rest_bias_estimation,
+                              biasSigmaInit=self.params.bias_sigma_init_deg, biasClip=self.params.bias_clip_deg)
             self.filter.update(np.ascontiguousarray(self._first[1]), np.ascontiguousarray(self._first[2]))
         self.filter.update(np.ascontiguousarray(gyro), np.ascontiguousarray(accel))
         bias, sigma = self.filter.getBiasEstimate()

@@ -14,12 +14,7 @@ from dataclasses import dataclass
 from testbed.validation import non_negative, positive, require
 
 ESTIMATOR_NAMES = ("ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")    # estimators.registry
-
-
-
-
-
-
+ACCEL_BIAS_MODES = ("startup", "always", "never")     # FusionConfig.accel_bias_estimation
 
 
 def _probability(where: str, value: float) -> None:
@@ -32,22 +27,26 @@ class FusionConfig:
     gyro_noise_density: float          # rad/s/sqrt(Hz)
     gyro_bias_random_walk: float       # rad/s^2/sqrt(Hz)
     gyro_bias_initial_std: float       # rad/s
+    gyro_scale_std: float              # scale-factor and cross-axis error, a fraction of the turn
     accel_noise_density: float         # m/s^2/sqrt(Hz)
     accel_bias_initial_std: float      # m/s^2: turn-on offset plus misalignment, per axis
-    accel_bias_estimation: bool        # false: the offset is a "consider" state, in the covariance only
+    accel_bias_estimation: str         # ACCEL_BIAS_MODES: when the offset is estimated; else a "consider" state
     accel_bias_random_walk: float      # m/s^3/sqrt(Hz)
-    body_accel_std: float              # m/s^2, stationary std of the body acceleration (Gauss-Markov)
-    body_accel_time_constant: float    # s, its correlation time
+    body_accel_std: float              # m/s^2, std of the body acceleration (accelerometer gate, fallback noise)
     initial_tilt_std_deg: float
     initial_yaw_std_deg: float
     initial_velocity_std: float        # m/s
-    accel_inflation_deadband: float    # m/s^2: | |f| - g | below this leaves the accelerometer noise as is
-    accel_inflation_scale: float       # m/s^2: noise std grows by one per this much excess above the deadband
-    accel_gate_probability: float      # chi-square gate (3 dof) of the specific-force innovation
+    accel_gate_probability: float      # chi-square gate (3 dof) of the body acceleration a sample implies
     gate_recovery_time: float          # s: after this long rejecting, the tilt is reopened as at start
+    still_window: float                # s, span of a still-body gravity measurement (estimators/stillness.py)
+    still_max_rate_dps: float          # deg/s, largest turn rate of a still body
+    still_max_force_change: float      # m/s^2, largest change of the specific force within a still window
+    still_force_std: float             # m/s^2, what a still body's specific force varies beyond white noise
+    rolling_feet: bool                 # planted foot spheres roll as their tibiae turn (estimators/leg_odometry.py)
     stance_min_force: float            # N: a foot in contact carrying less is not planted yet (or any more)
     foot_position_std: float           # m, stance-foot position from the encoders (noise, compliance)
     foot_slip_std: float               # m/sqrt(s), random walk of a stance foot on the ground
+    foot_creep_accel_std: float        # m/s^2, systematic acceleration of the stance feet's creep
     foot_gate_probability: float       # chi-square gate (3 dof) of a foot's innovation; beyond it, it slipped
     bias_fault_window: float           # s, span over which the tilt corrections are summed
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
@@ -55,18 +54,23 @@ class FusionConfig:
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
-                     "body_accel_std",
-                     "body_accel_time_constant", "initial_tilt_std_deg", "initial_yaw_std_deg",
-                     "initial_velocity_std", "accel_inflation_scale", "gate_recovery_time",
+                     "body_accel_std", "initial_tilt_std_deg", "initial_yaw_std_deg",
+                     "initial_velocity_std", "gate_recovery_time",
                      "foot_position_std", "foot_slip_std", "bias_fault_window", "bias_fault_std"):
             positive(f"estimators.ekf.{name}", getattr(self, name))
         non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)
+        non_negative("estimators.ekf.gyro_scale_std", self.gyro_scale_std)
+        non_negative("estimators.ekf.foot_creep_accel_std", self.foot_creep_accel_std)
         non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
-        non_negative("estimators.ekf.accel_inflation_deadband", self.accel_inflation_deadband)
         non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
+        positive("estimators.ekf still window", self.still_window, self.still_max_rate_dps, self.still_max_force_change,
+                 self.still_force_std)
         _probability("estimators.ekf.accel_gate_probability", self.accel_gate_probability)
         _probability("estimators.ekf.foot_gate_probability", self.foot_gate_probability)
         _probability("estimators.ekf.bias_fault_probability", self.bias_fault_probability)
+        require(self.accel_bias_estimation in ACCEL_BIAS_MODES,
+                 f"estimators.ekf.accel_bias_estimation must be one of {', '.join(ACCEL_BIAS_MODES)}, "
+                 f"got {self.accel_bias_estimation!r}")
         require(self.initial_tilt_std_deg <= 90 and self.initial_yaw_std_deg <= 90,
                  "estimators.ekf initial attitude std must not exceed 90 deg")
 
@@ -132,9 +136,13 @@ class VqfConfig:
     tau_acc: float                     # s, low-pass time constant of the inclination correction
     motion_bias_estimation: bool
     rest_bias_estimation: bool
+    bias_sigma_init_deg: float         # deg/s, VQF's biasSigmaInit: its prior on the gyro offset
+    bias_clip_deg: float               # deg/s, VQF's biasClip: the largest offset it estimates
 
     def __post_init__(self) -> None:
         positive("estimators.vqf.tau_acc", self.tau_acc)
+        positive("estimators.vqf.bias_sigma_init_deg", self.bias_sigma_init_deg)
+        positive("estimators.vqf.bias_clip_deg", self.bias_clip_deg)
 
 
 @dataclass(frozen=True)

@@ -1,36 +1,136 @@
 """`ekf`: error-state (multiplicative) extended Kalman filter on the fusion models of fusion.py.
 
-Linearised error-state transition over dt (Sola 2017, sections 5.3.3 and 5.4.3, with the
-accelerometer as a measurement; T = Exp(w dt)):
-    dtheta' = T^T dtheta - db_g dt
-    dv'     = T^T dv - [v]x db_g dt + da dt
-    da'     = exp(-dt / tau) da
-    dp_i'   = T^T dp_i - [p_i]x db_g dt - dv dt
-Measurement Jacobians: the specific force f = a + g R^T e_z + b_a gives H_theta = g [R^T e_z]x,
-H_a = H_ba = I (after R Exp(dtheta), R^T e_z = u + u x dtheta); a foot's kinematics give
-H_p_i = I. After each correction the error is injected into the nominal state and reset
-(Sola 2017, section 6).
+Linearised error-state transition over a preintegrated interval dt (D = dR^T, U = [u_i]x, the
+bias Jacobians J_* of preintegration.py; Sola 2017 section 7.2 and Forster et al. 2017 eq. 44):
+    dtheta_j = D dtheta_i + J_R db_g
+    dv_j     = D dv_i - g dt D U dtheta_i + (D J_v_g + [v_j]x J_R) db_g + D J_v_a db_a
+    dp_j     = D (dp_i - dv_i dt + g dt^2 / 2 U dtheta_i - J_p_g db_g - J_p_a db_a) + [p_j]x J_R db_g
+A foot's kinematics give H_p_i = I. After each correction the error is injected into the nominal
+state and reset (Sola 2017, section 6).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACC, ACCEL_BIAS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator, foot,
-                               inject_in_place, predicted_specific_force, propagate)
-from estimators.linalg import inverse3, skew, stacked_skew
+from estimators.fusion import ACCEL_BIAS, ERROR_DIM, THETA, FusionEstimator, NominalState, inject_in_place
+from estimators.linalg import inverse3, skew
+from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
+                                       current_attitude, quaternion_matrix, skew3)
 from testbed.config import Config
 from testbed.kinematics import LegGeometry
 
 I3 = np.eye(3)
 RESET_THRESHOLD = 1e-6    # rad: below it the reset changes P by under 1e-6 of itself: skipped
-# Index arrays that fill the feet's diagonal blocks of F in one assignment.
-_FOOT_BLOCK_ROWS, _FOOT_BLOCK_COLUMNS = np.nonzero(np.kron(np.eye(NUM_FEET), np.ones((3, 3))))
-_FOOT_BLOCK_ROWS, _FOOT_BLOCK_COLUMNS = _FOOT_BLOCK_ROWS + FEET.start, _FOOT_BLOCK_COLUMNS + FEET.start
+
+
+@njit(cache=True)
+def predict(buffer: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.ndarray, F: np.ndarray,
+            noise_rates: np.ndarray, extra_noise: np.ndarray, gravity: float) -> tuple[float, float, float, float]:
+    """Move velocity, feet (in place) and P over the preintegrated interval; returns the attitude.
+    The process noise is diagonal: `noise_rates` per second of interval plus `extra_noise`."""
+    dt = buffer[DT]
+    qx, qy, qz, qw = buffer[0], buffer[1], buffer[2], buffer[3]
+    up = np.array([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)])
+    D = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19]).T
+    shift = velocity * dt - 0.5 * gravity * dt * dt * up + buffer[DP]
+    velocity[:] = D @ (velocity - gravity * dt * up + buffer[DV])
+    for leg in range(feet.shape[0]):
+        feet[leg] = D @ (feet[leg] - shift)
+    _fill_transition(F, D, buffer[JACOBIANS].reshape(5, 3, 3), up, velocity, feet, gravity, dt)
+    P[:] = F @ P @ F.T
+    _symmetrise(P)        # against rounding
+    for i in range(P.shape[0]):
+        P[i, i] += noise_rates[i] * dt + extra_noise[i]
+    return current_attitude(buffer)
+
+
+@njit(cache=True)
+def _fill_transition(F: np.ndarray, D: np.ndarray, J: np.ndarray, up: np.ndarray, velocity: np.ndarray,
+                     feet: np.ndarray, gravity: float, dt: float) -> None:
+    """The non-identity blocks of the error-state transition (module docstring), in place.
+    `velocity` and `feet` are the nominal values after the interval."""
+    DU = D @ skew3(up[0], up[1], up[2])
+    JR = J[J_R]
+    F[0:3, 0:3] = D
+    F[0:3, 3:6] = JR
+    F[6:9, 0:3] = -gravity * dt * DU
+    F[6:9, 3:6] = D @ J[J_V_G] + skew3(velocity[0], velocity[1], velocity[2]) @ JR
+    F[6:9, 6:9] = D
+    F[6:9, 9:12] = D @ J[J_V_A]
+    foot_theta = 0.5 * gravity * dt * dt * DU
+    foot_bias = -(D @ J[J_P_G])
+    foot_accel_bias = -(D @ J[J_P_A])
+    for leg in range(feet.shape[0]):
+        r = 12 + 3 * leg
+        F[r:r + 3, 0:3] = foot_theta
+        F[r:r + 3, 3:6] = foot_bias + skew3(feet[leg, 0], feet[leg, 1], feet[leg, 2]) @ JR
+        F[r:r + 3, 6:9] = -dt * D
+        F[r:r + 3, 9:12] = foot_accel_bias
+        F[r:r + 3, r:r + 3] = D
+
+
+@njit(cache=True)
+def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, variance: float, gate: float,
+                consider: bool, dx: np.ndarray, tilt_cov: np.ndarray) -> np.ndarray:
+    """Kalman update of P (in place) with the stance feet `legs` (their kinematics minus their
+    states: `innovation`, (n, 3)); each foot is first gated on its own 3x3 block. Writes the
+    correction dx (30,) and the covariance of its attitude part; returns the mask of feet used.
+    With `consider`, the accelerometer offset is a Schmidt-Kalman consider state: zero gain, and
+    the Joseph form with that gain = the optimal update plus K_c S K_c^T on its block."""
+    n = legs.shape[0]
+    accepted = np.zeros(n, dtype=np.bool_)
+    count = 0
+    for k in range(n):
+        b = 12 + 3 * legs[k]
+        S = P[b:b + 3, b:b + 3] + variance * np.eye(3)
+        y = innovation[k]
+        accepted[k] = y @ np.linalg.solve(S, y) <= gate
+        count += accepted[k]
+    dx[:] = 0.0
+    tilt_cov[:] = 0.0
+    if count == 0:
+        return accepted
+    index = np.empty(3 * count, dtype=np.int64)
+    z = np.empty(3 * count)
+    m = 0
+    for k in range(n):
+        if accepted[k]:
+            for i in range(3):
+                index[m] = 12 + 3 * legs[k] + i
+                z[m] = innovation[k, i]
+                m += 1
+    PHt = np.ascontiguousarray(P[:, index])
+    S = np.ascontiguousarray(PHt[index, :])
+    for i in range(m):
+        S[i, i] += variance
+    gain = PHt @ np.linalg.inv(S)
+    P -= gain @ PHt.T
+    if consider:
+        P[9:12, 9:12] += PHt[9:12] @ gain[9:12].T
+        gain[9:12] = 0.0
+    dx[:] = gain @ z
+    tilt_cov[:] = gain[0:3] @ PHt[0:3].T
+    if abs(dx[0]) + abs(dx[1]) + abs(dx[2]) > RESET_THRESHOLD:
+        # Reset (Sola 2017, section 6.3): P <- G P G^T, G = I - [dtheta / 2]x on the attitude block.
+        G = np.eye(3) - skew3(0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2])
+        P[0:3, :] = G @ P[0:3, :]
+        P[:, 0:3] = P[:, 0:3] @ G.T
+    _symmetrise(P)
+    return accepted
+
+
+@njit(cache=True)
+def _symmetrise(P: np.ndarray) -> None:
+    """P <- (P + P^T) / 2 in place (numba does not guard `P += P.T` against aliasing)."""
+    for i in range(P.shape[0]):
+        for j in range(i + 1, P.shape[0]):
+            mean = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = mean
+            P[j, i] = mean
 
 
 class EkfEstimator(FusionEstimator):
@@ -39,64 +139,38 @@ class EkfEstimator(FusionEstimator):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._F = np.eye(ERROR_DIM)
-        self._F_dt: float | None = None
-        self._process_diagonal = np.zeros(ERROR_DIM)
-        self._foot_blocks = np.zeros((NUM_FEET, 9))
-        self._H_specific_force = np.zeros((3, ERROR_DIM))     # H_a = H_ba = I; H_theta set per sample
-        self._H_specific_force[:, ACC] = I3
-        self._H_specific_force[:, ACCEL_BIAS] = I3
+        self._noise_rates = self.noise.process(1.0)
+        self._dx = np.zeros(ERROR_DIM)
+        self._tilt_cov = np.zeros((3, 3))
 
     @classmethod
     def from_config(cls, config: Config) -> "EkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, LegGeometry.from_config(config.robot),
-                   config.robot.foot_radius, config.run.gravity, imu_rotation(config), imu_position(config))
+                   config.robot.foot_radius, config.run.gravity, imu_rotation(config), imu_position(config),
+                   config.gait.startup_time)
 
-    def _predict(self, gyro: np.ndarray, dt: float) -> None:
-        old = self.state
-        if self._F_dt is None or abs(dt - self._F_dt) > 1e-9 * dt:
-            self._set_step(dt)
-        self.state, turn = propagate(old, gyro, dt, self._decay)
-        F = self._F
-        F[THETA, THETA] = turn.T
-        F[VEL, BIAS] = skew(-dt * old.velocity)
-        F[VEL, VEL] = turn.T
-        self._foot_blocks[:] = turn.T.ravel()
-        F[_FOOT_BLOCK_ROWS, _FOOT_BLOCK_COLUMNS] = self._foot_blocks.ravel()
-        F[FEET, BIAS] = stacked_skew(-dt * old.feet)
-        P = F @ self.P @ F.T
-        P += P.T        # F P F^T + Q, symmetrised against rounding
-        P *= 0.5
-        P.flat[::ERROR_DIM + 1] += self._process_diagonal
-        self.P = P
+    def _predict(self) -> None:
+        state = self.state
+        velocity, feet = state.velocity.copy(), state.feet.copy()
+        q = predict(self.pre.buffer, velocity, feet, self.P, self._F, self._noise_rates, self._extra_noise(),
+                    self.gravity)
+        self.state = NominalState(q, state.bias, velocity, state.accel_bias, feet)
 
-    def _set_step(self, dt: float) -> None:
-        """The parts of F and Q that depend on dt only (the IMU rate is usually constant)."""
-        self._F_dt = dt
-        self._decay = math.exp(-dt / self.noise.accel_time_constant)
-        self._F[THETA, BIAS] = -dt * I3
-        self._F[VEL, ACC] = dt * I3
-        self._F[ACC, ACC] = self._decay * I3
-        self._F[FEET, VEL] = np.tile(-dt * I3, (NUM_FEET, 1))
-        self._process_diagonal = self.noise.process(dt, self._decay)
-
-    def _correct_specific_force(self, accel: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
+    def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)
-        H = self._H_specific_force
-        H[:, THETA] = skew((self.gravity * ux, self.gravity * uy, self.gravity * uz))
-        return self._correct(H, accel - predicted_specific_force(self.state, self.gravity), variance, gate)
+        g = self.gravity
+        H = np.zeros((3, ERROR_DIM))
+        H[:, THETA] = skew((g * ux, g * uy, g * uz))
+        H[:, ACCEL_BIAS] = I3
+        return self._correct(H, mean_force - (self.state.accel_bias + (g * ux, g * uy, g * uz)), variance, gate)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        """All stance feet at once; each foot is gated on its own 3x3 innovation block first."""
-        innovation = measured - self.state.feet[legs]
-        blocks = [foot(leg) for leg in legs]
-        nis = np.array([y @ inverse3(self.P[b, b] + variance * I3) @ y for y, b in zip(innovation, blocks)])
-        accepted = nis <= gate
+        dx, tilt_cov = self._dx, self._tilt_cov
+        accepted = update_feet(self.P, measured - self.state.feet[legs], legs, variance, gate,
+                               self.consider is not None, dx, tilt_cov)
         if accepted.any():
-            index = np.concatenate([np.arange(b.start, b.stop) for b, ok in zip(blocks, accepted) if ok])
-            PHt = self.P[:, index]
-            S = PHt[index]
-            S.flat[::len(index) + 1] += variance
-            self._apply(PHt, np.linalg.inv(S), innovation[accepted].ravel())
+            inject_in_place(self.state, dx)
+            self._record_tilt_correction(dx[THETA].copy(), tilt_cov.copy())
         return accepted
 
     def _correct(self, H: np.ndarray, innovation: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
@@ -128,6 +202,8 @@ class EkfEstimator(FusionEstimator):
             G = I3 - skew(0.5 * dtheta)
             P[THETA, :] = G @ P[THETA, :]
             P[:, THETA] = P[:, THETA] @ G.T
-        self.P = P      # symmetrised once per IMU sample, in _predict
+        P += P.T
+        P *= 0.5
+        self.P = P
         inject_in_place(self.state, dx)
         self._record_tilt_correction(dtheta, gain[THETA] @ PHt[THETA].T)

@@ -1,30 +1,30 @@
 """IMU + leg-kinematics fusion: the models shared by `ekf` and `ukf`, and their common front end.
 
-Nominal state: attitude q (world_from_body), gyro bias b_g, accelerometer bias b_a, and for the
-IMU point its velocity v and non-gravitational acceleration a, plus the six foot positions p_i
-relative to the IMU point, all in the body frame (robocentric, so that yaw never enters).
-Error state (33): dx = [dtheta (local rotation vector), db_g, dv, da, db_a, dp_1 ... dp_6]
-(Sola 2017, section 5, with the accelerometer moved from the prediction to a measurement so that
-the body acceleration can be modelled; foot states as in Bloesch et al. 2012, "State Estimation
-for Legged Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the body frame).
+Nominal state: attitude q (world_from_body), gyro bias b_g, accelerometer bias b_a, the IMU
+point's velocity v and the six foot positions p_i relative to the IMU point, all in the body frame
+(robocentric, so that yaw never enters). Error state (30): dx = [dtheta (local rotation vector),
+db_g, dv, db_a, dp_1 ... dp_6] (Sola 2017, "Quaternion kinematics for the error-state Kalman
+filter", sections 5 and 6; foot states as in Bloesch et al. 2012, "State Estimation for Legged
+Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the body frame).
 
-Process (per IMU sample, gyro w_m, w = w_m - b_g):
-    q'   = q * Exp(w dt)                     gyro integration (Sola 2017, section 5.3)
-    v'   = Exp(w dt)^T v + a dt              v_dot = a - w x v in a rotating frame
-    a'   = exp(-dt / tau) a                  first-order Gauss-Markov body acceleration
-    p_i' = Exp(w dt)^T p_i - v dt            a stance foot is fixed in the world (plus slip noise)
-    b_g' = b_g, b_a' = b_a                   plus random walks
-Measurements:
-    specific force   f = a + g R^T e_z + b_a   the gravity direction fixes roll and pitch once a
-                                              and b_a are known; its null space is yaw, which
-                                              stays unobserved
-    stance foot i    FK_i(encoders) - r_imu = p_i   (forward kinematics, eq. 2 of the paper)
-A foot's state restarts from its kinematics at every touchdown. The feet pin the displacement of
-the body, hence v and the integral of a, hence the tilt, within a fraction of a second.
-A constant accelerometer bias looks like a tilt; they separate only as the body turns. By
-default b_a is a "consider" state (Schmidt-Kalman): never updated, but its prior widens the tilt
-covariance. Without encoders the filter falls back on the Gauss-Markov prior of a: a
-gravity-direction filter whose accelerometer noise is the body acceleration.
+The IMU drives the prediction (strapdown: the specific force is an input, not a measurement),
+summed between filter steps by `preintegration` (Forster et al. 2017). Over an interval dt from
+step i to step j, with u = R^T e_z the up direction in the body frame:
+    R_j  = R_i dR
+    v_j  = dR^T (v_i - g u_i dt + dv)
+    p_j  = dR^T (p_i - v_i dt + g u_i dt^2 / 2 - dp)     a stance foot is fixed in the world
+    b_g, b_a                                             random walks
+Measurement, at every encoder sample (200 Hz):
+    stance foot i    FK_i(encoders) - r_imu = p_i         (forward kinematics, eq. 2 of the paper)
+A foot's state restarts from its kinematics at every touchdown. A tilt error dtheta makes the
+predicted velocity drift at g [u]x dtheta, which the stance feet see within a few steps: the leg
+kinematics are what separate gravity from walking accelerations (the accelerometer reads both).
+A constant accelerometer offset looks exactly like a tilt; the two separate only as the body turns
+about a horizontal axis: b_a is estimated during the start-up calibration poses (testbed/startup.py:
+the body tilts +-12 deg in roll and pitch on planted feet, the feet states tell the rotation), then
+held as a "consider" state (Schmidt-Kalman): no update moves it, its covariance widens the tilt's. While no foot is tracked (encoder dropout), the mean
+specific force of each step corrects the tilt as a gravity-direction measurement, its noise the
+body acceleration.
 """
 
 from __future__ import annotations
@@ -41,22 +41,25 @@ from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.leg_odometry import StanceTracker
 from estimators.linalg import cross, skew
-from estimators.terrain import TerrainFilter, fit_plane, slopes_and_height
+from estimators.stillness import StillWindow
+from estimators.preintegration import ACCEPTED, DQ, REJECTED, Preintegration, imu_sample
+from estimators.terrain import TerrainFilter, plane_measurement
 from sensors.samples import EncoderSample, FootSample
 from testbed.kinematics import LegGeometry
 
 NUM_FEET = 6
-ERROR_DIM = 15 + 3 * NUM_FEET
-THETA, BIAS, VEL, ACC, ACCEL_BIAS = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
-FEET = slice(15, ERROR_DIM)
+ERROR_DIM = 12 + 3 * NUM_FEET
+THETA, BIAS, VEL, ACCEL_BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
+FEET = slice(12, ERROR_DIM)
 
-
-VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): keeps the velocity block well conditioned
+VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
+MAX_STEP = 0.01                # s: without encoder samples, the filter steps on its own this often
+ZERO = np.zeros(3)
 
 
 def foot(leg: int) -> slice:
     """The error-state slice of foot `leg`."""
-    return slice(15 + 3 * leg, 18 + 3 * leg)
+    return slice(12 + 3 * leg, 15 + 3 * leg)
 
 
 @dataclass
@@ -64,25 +67,19 @@ class NominalState:
     q: rot.Quaternion
     bias: np.ndarray          # (3,) rad/s, gyro
     velocity: np.ndarray      # (3,) m/s, IMU point, body frame
-    accel: np.ndarray         # (3,) m/s^2, IMU point, body frame, gravity excluded
     accel_bias: np.ndarray    # (3,) m/s^2
     feet: np.ndarray          # (6, 3) m, from the IMU point, body frame
 
 
-def propagate(state: NominalState, gyro: np.ndarray, dt: float, decay: float) -> tuple[NominalState, np.ndarray]:
-    """The nominal state after dt with measured rate `gyro`; also returns Exp(w dt) as a matrix."""
-    omega = gyro - state.bias
-    step = rot.exp(omega[0] * dt, omega[1] * dt, omega[2] * dt)
-    turn = rot.to_matrix(step)
-    new = NominalState(rot.normalized(rot.multiply(state.q, step)), state.bias,
-                       turn.T @ state.velocity + state.accel * dt, decay * state.accel, state.accel_bias,
-                       state.feet @ turn - state.velocity * dt)    # rows: p' = turn^T p - v dt
-    return new, turn
-
-
-def predicted_specific_force(state: NominalState, gravity: float) -> np.ndarray:
-    ux, uy, uz = rot.up_in_body(state.q)
-    return state.accel + state.accel_bias + gravity * np.array([ux, uy, uz])
+def apply_preintegration(state: NominalState, pre: Preintegration, gravity: float) -> tuple[NominalState, np.ndarray]:
+    """The nominal state after the preintegrated interval; also returns dR (3x3)."""
+    dt = pre.dt
+    up = np.array(rot.up_in_body(state.q))
+    turn = rot.to_matrix(tuple(pre.dq))
+    velocity = (state.velocity - gravity * dt * up + pre.dv) @ turn
+    feet = (state.feet - (state.velocity * dt - 0.5 * gravity * dt * dt * up + pre.dp)) @ turn
+    q = rot.normalized(rot.multiply(state.q, tuple(pre.dq)))
+    return NominalState(q, state.bias, velocity, state.accel_bias, feet), turn
 
 
 @dataclass(frozen=True)
@@ -92,7 +89,6 @@ class FusionNoise:
     bias_walk: float            # rad^2/s^3
     accel_density: float        # (m/s^2)^2 / Hz
     body_accel: float           # (m/s^2)^2
-    accel_time_constant: float  # s
     accel_bias_walk: float      # (m/s^2)^2 / s
     foot_position: float        # m^2
     foot_slip: float            # m^2 / s
@@ -100,13 +96,13 @@ class FusionNoise:
     @classmethod
     def from_config(cls, params: FusionConfig) -> "FusionNoise":
         return cls(params.gyro_noise_density**2, params.gyro_bias_random_walk**2, params.accel_noise_density**2,
-                   params.body_accel_std**2, params.body_accel_time_constant, params.accel_bias_random_walk**2,
-                   params.foot_position_std**2, params.foot_slip_std**2)
+                   params.body_accel_std**2, params.accel_bias_random_walk**2, params.foot_position_std**2,
+                   params.foot_slip_std**2)
 
-    def process(self, dt: float, decay: float) -> np.ndarray:
-        """Diagonal of the discrete process noise over dt (Sola 2017, section 5.4.3)."""
-        return np.repeat([self.gyro * dt, self.bias_walk * dt, VELOCITY_RANDOM_WALK**2 * dt,
-                          self.body_accel * (1.0 - decay * decay), self.accel_bias_walk * dt]
+    def process(self, dt: float) -> np.ndarray:
+        """Diagonal of the discrete process noise over dt (white noises integrated over dt)."""
+        velocity = (self.accel_density + VELOCITY_RANDOM_WALK**2) * dt
+        return np.repeat([self.gyro * dt, self.bias_walk * dt, velocity, self.accel_bias_walk * dt]
                          + [self.foot_slip * dt] * NUM_FEET, 3)
 
 
@@ -119,8 +115,10 @@ def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
     covariance[THETA, THETA] = tilt**2 * (np.eye(3) - vertical) + yaw**2 * vertical
     covariance[BIAS, BIAS] = params.gyro_bias_initial_std**2 * np.eye(3)
     covariance[VEL, VEL] = params.initial_velocity_std**2 * np.eye(3)
-    covariance[ACC, ACC] = params.body_accel_std**2 * np.eye(3)
+    # The stance feet's systematic creep acceleration aliases into the tilt exactly as an offset does.
     covariance[ACCEL_BIAS, ACCEL_BIAS] = params.accel_bias_initial_std**2 * np.eye(3)
+    if params.accel_bias_estimation == "never":
+        covariance[ACCEL_BIAS, ACCEL_BIAS] += params.foot_creep_accel_std**2 * np.eye(3)
     covariance[FEET, FEET] = params.foot_position_std**2 * np.eye(3 * NUM_FEET)    # restarted at touchdown
     return covariance
 
@@ -133,11 +131,10 @@ def reset_jacobian(dtheta: np.ndarray) -> np.ndarray:
 
 
 def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
-    """inject, modifying `state` (the EKF's hot path)."""
+    """inject, modifying `state` (the EKF's path)."""
     state.q = rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2])
     state.bias = state.bias + dx[BIAS]
     state.velocity = state.velocity + dx[VEL]
-    state.accel = state.accel + dx[ACC]
     state.accel_bias = state.accel_bias + dx[ACCEL_BIAS]
     state.feet = state.feet + dx[FEET].reshape(NUM_FEET, 3)
 
@@ -145,7 +142,7 @@ def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
 def inject(state: NominalState, dx: np.ndarray) -> NominalState:
     """x_true = x (+) dx (Sola 2017, section 6.2)."""
     return NominalState(rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2]), state.bias + dx[BIAS],
-                        state.velocity + dx[VEL], state.accel + dx[ACC], state.accel_bias + dx[ACCEL_BIAS],
+                        state.velocity + dx[VEL], state.accel_bias + dx[ACCEL_BIAS],
                         state.feet + dx[FEET].reshape(NUM_FEET, 3))
 
 
@@ -191,15 +188,18 @@ class BiasStepDetector:
 
 
 class FusionEstimator(Estimator):
-    """Front end of `ekf` and `ukf`: time keeping, gates, leg odometry, terrain and the output.
+    """Front end of `ekf` and `ukf`: preintegration, time keeping, gates, leg odometry, terrain
+    and the output.
 
-    Subclasses hold the filter core: `state` (NominalState), `P` (33x33 error covariance) and the
-    three methods below, which call `_record_tilt_correction` after every applied update.
+    Subclasses hold the filter core: `state` (NominalState), `P` (30x30 error covariance) and the
+    three methods below, which call `_record_tilt_correction` after every applied update. The
+    filter steps (`_step`) at every encoder sample, and every MAX_STEP without them; between steps
+    each IMU sample only adds to the preintegration and the attitude it reports.
     """
 
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, geometry: LegGeometry,
                  foot_radius: float, gravity: float, imu_rotation: np.ndarray | None = None,
-                 imu_position: np.ndarray | None = None):
+                 imu_position: np.ndarray | None = None, startup_time: float = 0.0):
         super().__init__(imu_rotation)
         self.params = params
         self.noise = FusionNoise.from_config(params)
@@ -207,38 +207,55 @@ class FusionEstimator(Estimator):
         self.foot_radius = foot_radius
         self.imu_position = np.zeros(3) if imu_position is None else np.asarray(imu_position, dtype=float)
         self.accel_gate = float(chi2.ppf(params.accel_gate_probability, 3))
+        # Squared body acceleration beyond which a specific force sample is an outlier.
+        self._accel_gate = self.accel_gate * self.noise.body_accel
         self.foot_gate = float(chi2.ppf(params.foot_gate_probability, 3))
         self.legs = StanceTracker(geometry, params.stance_min_force)
+        self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
+        # White accelerometer noise averaged over the window, and what a still body still shakes.
+        self._still_variance = params.accel_noise_density**2 / params.still_window + params.still_force_std**2
         self.terrain = TerrainFilter(terrain)
         self.bias_steps = BiasStepDetector(params.bias_fault_window, params.bias_fault_probability)
-        # States whose uncertainty is carried but which updates leave alone (Schmidt 1966).
-        self.consider = None if params.accel_bias_estimation else ACCEL_BIAS
+        # States whose uncertainty is carried but which updates leave alone (Schmidt 1966): the
+        # accelerometer offset, once the start-up poses are over (`startup_time`, s).
+        self.learn_accel_bias_until = {"always": math.inf, "startup": startup_time,
+                                       "never": -math.inf}[params.accel_bias_estimation]
+        self.consider = None if self.learn_accel_bias_until > 0 else ACCEL_BIAS
         self.state: NominalState | None = None
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
+        self.pre = Preintegration()
         self.rejected_accel = 0
         self.tilt_restarts = 0
         self.velocity_restarts = 0
         self.rejected_feet = 0
-        self._last_gyro = np.zeros(3)
-        self._last_dt = 0.0
+        self._extra = np.zeros(ERROR_DIM)
         self._accel_rejected_since: float | None = None
+        self._output: tuple | None = None
+        self._body_turn = np.zeros(3)        # rad, the gyro's rotation vector since the last encoder sample
 
     # -- filter core ---------------------------------------------------------------------------
 
     @abc.abstractmethod
-    def _predict(self, gyro: np.ndarray, dt: float) -> None:
-        """Propagate state and P over dt with the mean measured rate `gyro`."""
+    def _predict(self) -> None:
+        """Move state and P over the preintegrated interval `self.pre` (dt > 0)."""
 
     @abc.abstractmethod
-    def _correct_specific_force(self, accel: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
-        """Specific-force update with noise `variance` I; applied only if the NIS <= gate.
-        Returns (applied, NIS)."""
+    def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
+        """Gravity-direction update from a step's mean specific force, noise `variance` I; applied
+        only if the NIS <= gate. Returns (applied, NIS)."""
 
     @abc.abstractmethod
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
         """Update of the tracked feet `legs` with their kinematics (n, 3); a foot whose NIS exceeds
         the gate is left out. Returns the (n,) mask of the feet used."""
+
+    def _extra_noise(self) -> np.ndarray:
+        """Process noise of this step beyond the white noises: the attitude variance of the gyro's
+        scale and cross-axis errors over the step's turn (set in `_step`), the velocity variance of
+        the specific force samples that were rejected or missing."""
+        self._extra[VEL] = self.pre.extra_velocity_variance
+        return self._extra
 
     def _record_tilt_correction(self, dtheta: np.ndarray, covariance: np.ndarray) -> None:
         """An applied update moved the attitude by dtheta, whose predicted covariance was `covariance`."""
@@ -249,64 +266,92 @@ class FusionEstimator(Estimator):
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         if self.state is None:
             return self._initialise(t, gyro, accel)
-        gyro_now = self._last_gyro if gyro is None else gyro
         dt = t - self.t
+        status, *attitude = imu_sample(self.pre.buffer, ZERO if gyro is None else gyro,
+                                       ZERO if accel is None else accel, gyro is not None, accel is not None,
+                                       max(dt, 0.0), self.gravity, self._accel_gate, self.noise.body_accel)
         if dt > 0:
-            # Trapezoidal rate over the step: second-order accurate gyro integration.
-            self._predict(0.5 * (self._last_gyro + gyro_now), dt)
-            self._last_dt = dt
             self.t = t
-        self._last_gyro = gyro_now
-        if accel is not None and self._last_dt > 0:
-            self._specific_force_update(t, accel)
-        if self.bias_steps.check(t, self.state.q):
+        if status == ACCEPTED:
+            self._accel_rejected_since = None
+        elif status == REJECTED and self._accel_rejected(t, accel):
+            attitude = None
+        if self.pre.dt >= MAX_STEP:
+            self._step()
+            attitude = None
+        return self._estimate(t, attitude)
+
+    def _accel_rejected(self, t: float, accel: np.ndarray) -> bool:
+        """Count a specific force beyond the gate (integrated as gravity alone). Returns True when
+        the tilt was restarted."""
+        self.rejected_accel += 1
+        if self._accel_rejected_since is None:
+            self._accel_rejected_since = t
+            return False
+        if t - self._accel_rejected_since <= self.params.gate_recovery_time:
+            return False
+        # Rejected for too long: the filter, not the sensor, is off (its attitude was thrown by a
+        # gyro fault, say). Restart the tilt from gravity as at start-up.
+        self._accel_rejected_since = None
+        self._step()
+        self._restart_tilt(accel)
+        return True
+
+    def _step(self) -> None:
+        """Apply the preintegrated interval to the state and its covariance."""
+        if self.pre.dt <= 0:
+            return
+        mean_force = self.pre.dv / self.pre.dt
+        turn = np.array(rot.log(tuple(self.pre.buffer[DQ])))       # the gyro's alone: no filter corrections
+        self._body_turn += turn
+        self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn @ turn))**2
+        still_force = self.still.add(self.pre.dt, turn, mean_force)
+        self._predict()
+        if still_force is not None:
+            self._correct_specific_force(still_force + self.state.accel_bias, self._still_variance, self.accel_gate)
+        if not self.legs.tracked.any():
+            # No leg pins the velocity: fall back on the gravity direction of the step's mean
+            # specific force. Walking accelerations last longer than a step, so averaging over the
+            # step does not reduce their variance: a weak reference, for long leg outages.
+            self._correct_specific_force(mean_force + self.state.accel_bias, self.noise.body_accel, self.accel_gate)
+        if self.bias_steps.check(self.t, self.state.q):
             self._open_bias(np.array(rot.up_in_body(self.state.q)))
-        return self._estimate(t)
+        if self.consider is None and self.t >= self.learn_accel_bias_until:
+            self._hold_accel_bias()
+        self._new_interval()
+
+    def _hold_accel_bias(self) -> None:
+        """The start-up poses are over: the accelerometer offset becomes a consider state, its
+        variance widened by the stance feet's creep acceleration, which aliases into the tilt
+        exactly as an offset does."""
+        self.consider = ACCEL_BIAS
+        self.P[ACCEL_BIAS, ACCEL_BIAS] += self.params.foot_creep_accel_std**2 * np.eye(3)
+
+    def _new_interval(self) -> None:
+        """Preintegrate from the nominal state as it is now (after a step and its updates)."""
+        self.pre.start(self.state.q, self.state.bias, self.state.accel_bias)
+        self._output = None
 
     def _open_bias(self, up: np.ndarray) -> None:
         """The gyro bias moved: widen its uncertainty, and the tilt's by the drift it may have
-        caused over a detection window. The tilt is widened together with the body
-        acceleration, da = -g [u]x dtheta, which leaves the predicted specific force unchanged:
-        otherwise the next accelerometer sample would be read as pure tilt."""
+        caused over a detection window."""
         step = self.params.bias_fault_std
         drift = step * self.bias_steps.window
         horizontal = np.eye(3) - np.outer(up, up)
-        direction = np.zeros((ERROR_DIM, 3))
-        direction[THETA] = horizontal
-        direction[ACC] = -self.gravity * skew(up) @ horizontal
         self.P[BIAS, BIAS] += step**2 * np.eye(3)
-        self.P += drift**2 * direction @ direction.T
+        self.P[THETA, THETA] += drift**2 * horizontal
 
     def _initialise(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         if accel is None or not np.linalg.norm(accel) > 0:
             return None
         roll, pitch = rot.tilt_from_specific_force(*accel)
         q = rot.quaternion_from_euler(roll, pitch, 0.0)
-        self.state = NominalState(q, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros((NUM_FEET, 3)))
+        self.state = NominalState(q, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros((NUM_FEET, 3)))
         self.P = initial_covariance(self.params, q)
         self.t = t
-        if gyro is not None:
-            self._last_gyro = gyro
+        self.pre.remember(gyro, accel)
+        self._new_interval()
         return self._estimate(t)
-
-    def _specific_force_update(self, t: float, accel: np.ndarray) -> None:
-        # White-noise variance of one sample of a density: sigma^2 = density^2 / dt.
-        norm = math.sqrt(accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2])
-        excess = max(0.0, abs(norm - self.gravity) - self.params.accel_inflation_deadband)
-        inflation = 1.0 + excess / self.params.accel_inflation_scale
-        variance = self.noise.accel_density / self._last_dt * inflation**2
-        applied, _ = self._correct_specific_force(accel, variance, self.accel_gate)
-        if applied:
-            self._accel_rejected_since = None
-            return
-        self.rejected_accel += 1
-        if self._accel_rejected_since is None:
-            self._accel_rejected_since = t
-        elif t - self._accel_rejected_since > self.params.gate_recovery_time:
-            # Rejected for too long: the filter, not the sensor, is off (its attitude was thrown by
-            # a gyro fault, say). Restart the tilt from gravity as at start-up.
-            self._accel_rejected_since = None
-            self._restart_tilt(accel)
 
     def _restart_tilt(self, accel: np.ndarray) -> None:
         """Roll and pitch from this specific force, with the start-up uncertainty; yaw is kept."""
@@ -319,7 +364,9 @@ class FusionEstimator(Estimator):
         self.P[:, THETA] = 0.0
         tilt = math.radians(self.params.initial_tilt_std_deg)
         self.P[THETA, THETA] = tilt**2 * (np.eye(3) - np.outer(up, up)) + yaw_variance * np.outer(up, up)
+        self._restart_velocity()
         self.tilt_restarts += 1
+        self._new_interval()
 
     def _update_feet(self, sample: FootSample) -> None:
         self.legs.add_contacts(sample.contact, sample.normal_forces)
@@ -327,6 +374,9 @@ class FusionEstimator(Estimator):
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
             return
+        self._step()
+        if self.params.rolling_feet:
+            self._roll_feet(sample.positions)
         feet = self.legs.feet(sample.positions)
         measured = feet - self.imu_position
         measurable = self.legs.measurable(feet)
@@ -342,7 +392,17 @@ class FusionEstimator(Estimator):
                 self._restart_velocity()
         for leg in restart:
             self._restart_foot(leg, measured[leg])
-        self._terrain_update(sample.t, feet)
+        self._terrain_update(sample.t, feet[measurable])
+        self._new_interval()
+
+    def _roll_feet(self, positions: np.ndarray) -> None:
+        """Move the tracked feet's centres by how far their spheres rolled since the last encoder sample."""
+        shift = self.legs.rolling_shift(positions, self._body_turn, np.array(rot.up_in_body(self.state.q)),
+                                        self.foot_radius)
+        self._body_turn[:] = 0.0
+        feet = self.state.feet.copy()
+        feet[self.legs.tracked] += shift[self.legs.tracked]
+        self.state.feet = feet
 
     def _restart_velocity(self) -> None:
         self.P[VEL, :] = 0.0
@@ -361,21 +421,31 @@ class FusionEstimator(Estimator):
         self.P[block, block] = self.noise.foot_position * np.eye(3)
         self.legs.tracked[leg] = True
 
-    def _terrain_update(self, t: float, feet: np.ndarray) -> None:
-        stance = feet[self.legs.measurable(feet)]
-        fit = fit_plane(stance @ rot.to_matrix(self.state.q).T, self.params.foot_position_std)
-        if fit is not None:
-            self.terrain.update(t, *slopes_and_height(fit, self.foot_radius))
+    def _terrain_update(self, t: float, stance: np.ndarray) -> None:
+        """The support plane of the stance feet (body frame, from O_b) in gravity-aligned axes."""
+        valid, measurement, covariance = plane_measurement(stance @ rot.to_matrix(self.state.q).T,
+                                                           self.params.foot_position_std, self.foot_radius)
+        if valid:
+            self.terrain.update(t, measurement, covariance)
 
     # -- output --------------------------------------------------------------------------------
 
-    def _estimate(self, t: float) -> Estimate:
-        q = self.state.q
-        roll, pitch, yaw = rot.euler_from_quaternion(q)
+    def _estimate(self, t: float, attitude: list | None = None) -> Estimate:
+        """The attitude of this sample (qx, qy, qz, qw, roll, pitch, yaw; None: the nominal's); its
+        covariance, the bias and the terrain of the last step (they change little within a step,
+        and are recomputed only there)."""
+        if attitude is None:
+            q = self.state.q
+            attitude = [*q, *rot.euler_from_quaternion(q)]
+        qx, qy, qz, qw, roll, pitch, yaw = attitude
+        if self._output is None:
+            self._output = self._step_output(t, roll, pitch, yaw)
+        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output)
+
+    def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
         euler = rot.euler_jacobian(roll, pitch)
         attitude_cov = euler @ self.P[THETA, THETA] @ euler.T
         terrain = (None, None, None, None)
         if self.terrain.x is not None:
             terrain = self.terrain.output(t, yaw, attitude_cov[:2, :2])
-        return Estimate(t, np.array(q), roll, pitch, yaw, attitude_cov, self.state.bias.copy(),
-                        self.P[BIAS, BIAS].copy(), *terrain)
+        return (attitude_cov, self.state.bias.copy(), self.P[BIAS, BIAS].copy(), *terrain)

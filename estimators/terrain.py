@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.stats import chi2
 
 from estimators.config import TerrainEstimatorConfig
@@ -33,8 +34,20 @@ class PlaneFit:
 def smallest_spread(points: np.ndarray) -> float:
     """Standard deviation of the points' (x, y) across their best line: the smaller principal
     value of their 2x2 scatter, in closed form."""
-    x, y = points[:, 0] - points[:, 0].mean(), points[:, 1] - points[:, 1].mean()
-    sxx, syy, sxy = float(x @ x) / len(x), float(y @ y) / len(y), float(x @ y) / len(x)
+    return _smallest_spread(np.ascontiguousarray(points, dtype=float))
+
+
+@njit(cache=True)
+def _smallest_spread(points: np.ndarray) -> float:
+    count = points.shape[0]
+    mx, my = points[:, 0].mean(), points[:, 1].mean()
+    sxx = syy = sxy = 0.0
+    for k in range(count):
+        x, y = points[k, 0] - mx, points[k, 1] - my
+        sxx += x * x
+        syy += y * y
+        sxy += x * y
+    sxx, syy, sxy = sxx / count, syy / count, sxy / count
     half_trace, half_gap = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
     return math.sqrt(max(0.0, half_trace - half_gap))
 
@@ -45,18 +58,27 @@ def fit_plane(points: np.ndarray, position_std: float) -> PlaneFit | None:
     The coefficient covariance is sigma^2 (A^T A)^-1 with sigma the larger of the assumed point
     noise and the residual standard error (non-coplanar feet: a step, rough ground).
     """
-    points = np.asarray(points, dtype=float)
-    count = len(points)
-    if count < 3 or smallest_spread(points) < MIN_FOOT_SPREAD:
+    points = np.ascontiguousarray(points, dtype=float)
+    if len(points) < 3 or _smallest_spread(points) < MIN_FOOT_SPREAD:
         return None
-    design = np.column_stack([points[:, 0], points[:, 1], np.ones(count)])
-    normal_matrix_inverse = inverse3(design.T @ design)
-    coefficients = normal_matrix_inverse @ (design.T @ points[:, 2])
+    coefficients, covariance = _fit_plane(points, position_std)
+    return PlaneFit(coefficients, covariance)
+
+
+@njit(cache=True)
+def _fit_plane(points: np.ndarray, position_std: float) -> tuple[np.ndarray, np.ndarray]:
+    count = points.shape[0]
+    design = np.ones((count, 3))
+    design[:, 0] = points[:, 0]
+    design[:, 1] = points[:, 1]
+    heights = np.ascontiguousarray(points[:, 2])
+    normal_matrix_inverse = np.linalg.inv(design.T @ design)
+    coefficients = normal_matrix_inverse @ (design.T @ heights)
     variance = position_std**2
     if count > 3:
-        residuals = points[:, 2] - design @ coefficients
-        variance = max(variance, float(residuals @ residuals) / (count - 3))
-    return PlaneFit(coefficients, variance * normal_matrix_inverse)
+        residuals = heights - design @ coefficients
+        variance = max(variance, (residuals @ residuals) / (count - 3))
+    return coefficients, variance * normal_matrix_inverse
 
 
 def slopes_and_height(fit: PlaneFit, foot_radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -69,6 +91,20 @@ def slopes_and_height(fit: PlaneFit, foot_radius: float) -> tuple[np.ndarray, np
     return np.array([a, b, height]), jacobian @ fit.covariance @ jacobian.T
 
 
+@njit(cache=True)
+def plane_measurement(points: np.ndarray, position_std: float, foot_radius: float) -> tuple:
+    """fit_plane then slopes_and_height in one compiled call (the filters' 200 Hz path):
+    (valid, (a, b, height), covariance)."""
+    if points.shape[0] < 3 or _smallest_spread(points) < MIN_FOOT_SPREAD:
+        return False, np.zeros(3), np.zeros((3, 3))
+    coefficients, covariance = _fit_plane(points, position_std)
+    a, b, c = coefficients[0], coefficients[1], coefficients[2]
+    s = math.sqrt(1.0 + a * a + b * b)
+    jacobian = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [c * a / s**3, c * b / s**3, -1.0 / s]])
+    return True, np.array([a, b, -c / s + foot_radius]), jacobian @ covariance @ jacobian.T
+
+
+@njit(cache=True)
 def heading_terrain_angles(a: float, b: float, yaw: float) -> tuple[float, float, np.ndarray]:
     """Terrain (roll, pitch) of the plane z = a x + b y + c (gravity-aligned axes) seen from the
     heading `yaw`, and d(roll, pitch)/d(a, b).
@@ -87,6 +123,27 @@ def heading_terrain_angles(a: float, b: float, yaw: float) -> tuple[float, float
     return roll, pitch, d_heading @ np.array([[cy, sy], [-sy, cy]])
 
 
+@njit(cache=True)
+def _kalman_update(x: np.ndarray, P: np.ndarray, q: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray,
+                   gate: float) -> bool:
+    """Random-walk prediction over `elapsed` and update with z (covariance R), in place; beyond the
+    gate (or NaN) the filter restarts on z instead. Returns True on a restart."""
+    prior = P.copy()
+    for i in range(3):
+        prior[i, i] += q[i] * elapsed
+    innovation = z - x
+    S_inverse = np.linalg.inv(prior + R)
+    if not innovation @ S_inverse @ innovation <= gate:
+        x[:] = z
+        P[:] = R
+        return True
+    gain = prior @ S_inverse
+    x += gain @ innovation
+    posterior = prior - gain @ prior
+    P[:] = 0.5 * (posterior + posterior.T)
+    return False
+
+
 class TerrainFilter:
     """Random-walk Kalman filter on x = (a, b, height) of the support plane (gravity-aligned axes)."""
 
@@ -102,25 +159,9 @@ class TerrainFilter:
 
     def update(self, t: float, measurement: np.ndarray, covariance: np.ndarray) -> None:
         if self.x is None:
-            self._restart(t, measurement, covariance)
-            return
-        prior = self.covariance_at(t)
-        innovation = measurement - self.x
-        innovation_cov = prior + covariance
-        if innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
+            self.x, self.P, self.t = measurement.copy(), covariance.copy(), t
+        elif _kalman_update(self.x, self.P, self.q, max(0.0, t - self.t), measurement, covariance, self.gate):
             self.restarts += 1
-            self._restart(t, measurement, covariance)
-            return
-        gain = np.linalg.solve(innovation_cov, prior).T    # prior S^-1, both symmetric
-        self.x = self.x + gain @ innovation
-        posterior = prior - gain @ prior
-        self.P = 0.5 * (posterior + posterior.T)
-        self.t = t
-        self._output = None
-
-    def _restart(self, t: float, measurement: np.ndarray, covariance: np.ndarray) -> None:
-        self.x = measurement.copy()
-        self.P = covariance.copy()
         self.t = t
         self._output = None
 
@@ -146,9 +187,13 @@ class TerrainFilter:
 
     def _heading_output(self, yaw: float) -> tuple[float, float, float, np.ndarray, np.ndarray]:
         """Terrain angles for a heading, their covariance at the last update and its growth rate."""
-        roll, pitch, d_angles = heading_terrain_angles(self.x[0], self.x[1], yaw)
-        jacobian = np.zeros((3, 3))
-        jacobian[:2, :2] = d_angles
-        jacobian[2, 2] = 1.0
-        return (roll, pitch, float(self.x[2]), jacobian @ self.P @ jacobian.T,
-                jacobian @ np.diag(self.q) @ jacobian.T)
+        return _heading_output(self.x, self.P, self.q, yaw)
+
+
+@njit(cache=True)
+def _heading_output(x: np.ndarray, P: np.ndarray, q: np.ndarray, yaw: float) -> tuple:
+    roll, pitch, d_angles = heading_terrain_angles(x[0], x[1], yaw)
+    jacobian = np.zeros((3, 3))
+    jacobian[:2, :2] = d_angles
+    jacobian[2, 2] = 1.0
+    return roll, pitch, x[2], jacobian @ P @ jacobian.T, jacobian @ np.diag(q) @ jacobian.T

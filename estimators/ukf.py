@@ -1,18 +1,20 @@
 """`ukf`: the models of fusion.py through filterpy's UnscentedKalmanFilter, to compare sigma points
 with the EKF's linearisation on the same data.
 
-filterpy's state `x` is the 33-dimensional error state dx = [dtheta, db_g, dv, da, db_a, dp_1..6] about the
-nominal state held here. Each sigma point is injected into the nominal state (q Exp(dtheta), ...),
-propagated or measured with the nonlinear models, and turned back into an error about the new
-nominal (Log for the rotation). After every step the mean error is injected into the nominal
-state and x is reset to zero (Sola 2017, section 6), so the sigma points stay centred on it.
-The spread of the sigma points must stay below 180 deg about the unobservable yaw axis: the yaw
-variance is capped at `max_yaw_std_deg`.
+filterpy's state `x` is the 30-dimensional error state dx = [dtheta, db_g, dv, db_a, dp_1..6] about
+the nominal state held here. Each sigma point is injected into the nominal state (q Exp(dtheta),
+...), moved over the preintegrated interval with its own biases (the increments corrected to first
+order with the preintegration's bias Jacobians, Forster et al. 2017 eq. 44) or measured, and turned
+back into an error about the new nominal (Log for the rotation). After every step the mean error
+is injected into the nominal state and x is reset to zero (Sola 2017, section 6), so the sigma
+points stay centred on it. The spread of the sigma points must stay below 180 deg about the
+unobservable yaw axis: the yaw variance is capped at `max_yaw_std_deg`.
 
-filterpy calls the process model once per sigma point (67 of them); `BatchUnscentedKalmanFilter`
+filterpy calls the process model once per sigma point (61 of them); `BatchUnscentedKalmanFilter`
 only replaces that loop by the same model evaluated on all points at once (`propagate_errors`,
 checked against the per-point `UkfEstimator._fx` in the tests). Everything else (sigma points,
-unscented transform, gain, update) is filterpy's.
+unscented transform, gain, update) is filterpy's. The stance feet are one stacked measurement per
+encoder sample, each foot first gated on its own block.
 """
 
 from __future__ import annotations
@@ -25,41 +27,57 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.config import FusionConfig, TerrainEstimatorConfig, UkfConfig
-from estimators.fusion import (ACC, ACCEL_BIAS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
-                               NominalState, inject, propagate, reset_jacobian)
+from estimators.fusion import (ACCEL_BIAS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
+                               NominalState, apply_preintegration, foot, inject, reset_jacobian)
+from estimators.linalg import inverse3
+from estimators.preintegration import J_P_A, J_P_G, J_R, J_V_A, J_V_G, Preintegration
 from testbed.config import Config
 from testbed.kinematics import LegGeometry
+
+I3 = np.eye(3)
 
 
 def difference(state: NominalState, reference: NominalState) -> np.ndarray:
     """dx such that state = reference (+) dx."""
     dtheta = rot.log(rot.multiply(rot.conjugate(reference.q), state.q))
     return np.concatenate([dtheta, state.bias - reference.bias, state.velocity - reference.velocity,
-                           state.accel - reference.accel, state.accel_bias - reference.accel_bias,
-                           (state.feet - reference.feet).ravel()])
+                           state.accel_bias - reference.accel_bias, (state.feet - reference.feet).ravel()])
 
 
-def propagate_errors(sigmas: np.ndarray, dt: float, before: NominalState, after: NominalState,
-                     gyro: np.ndarray, decay: float) -> np.ndarray:
-    """fusion.propagate on every error sigma point (rows of `sigmas`) at once: inject into
-    `before`, propagate, and return the errors about `after`."""
-    count = len(sigmas)
+def corrected(pre: Preintegration, gyro_bias_error: np.ndarray, accel_bias_error: np.ndarray) -> Preintegration:
+    """The increments as if integrated with biases larger by the given errors (first order)."""
+    out = Preintegration()
+    out.buffer[:] = pre.buffer
+    J = pre.jacobians
+    out.dq[:] = rot.multiply(tuple(pre.dq), rot.exp(*(J[J_R] @ gyro_bias_error)))
+    out.dv[:] = pre.dv + J[J_V_G] @ gyro_bias_error + J[J_V_A] @ accel_bias_error
+    out.dp[:] = pre.dp + J[J_P_G] @ gyro_bias_error + J[J_P_A] @ accel_bias_error
+    return out
+
+
+def propagate_errors(sigmas: np.ndarray, before: NominalState, after: NominalState, pre: Preintegration,
+                     gravity: float) -> np.ndarray:
+    """fusion.apply_preintegration on every error sigma point (rows of `sigmas`) at once: inject into
+    `before`, move over the interval with the point's biases, return the errors about `after`."""
+    count, dt, J = len(sigmas), pre.dt, pre.jacobians
+    gyro_error, accel_error = sigmas[:, BIAS], sigmas[:, ACCEL_BIAS]
     q = rot.multiply_batch(np.array(before.q), rot.exp_batch(sigmas[:, THETA]))
-    bias = before.bias + sigmas[:, BIAS]
     velocity = before.velocity + sigmas[:, VEL]
-    accel = before.accel + sigmas[:, ACC]
     feet = before.feet + sigmas[:, FEET].reshape(count, NUM_FEET, 3)
-    step = rot.exp_batch((gyro - bias) * dt)
-    turn = rot.to_matrix_batch(step)
-    moved_q = rot.normalized_batch(rot.multiply_batch(q, step))
-    moved_velocity = np.einsum("nji,nj->ni", turn, velocity) + accel * dt
-    moved_feet = feet @ turn - velocity[:, None, :] * dt
+    turn_q = rot.multiply_batch(pre.dq, rot.exp_batch(gyro_error @ J[J_R].T))
+    turn = rot.to_matrix_batch(turn_q)
+    dv = pre.dv + gyro_error @ J[J_V_G].T + accel_error @ J[J_V_A].T
+    dp = pre.dp + gyro_error @ J[J_P_G].T + accel_error @ J[J_P_A].T
+    up = rot.to_matrix_batch(q)[:, 2, :]                        # third row of R: R^T e_z
+    moved_velocity = np.einsum("nji,nj->ni", turn, velocity - gravity * dt * up + dv)
+    feet_shift = velocity * dt - 0.5 * gravity * dt * dt * up + dp
+    moved_feet = (feet - feet_shift[:, None, :]) @ turn
+    moved_q = rot.normalized_batch(rot.multiply_batch(q, turn_q))
     out = np.empty_like(sigmas)
     out[:, THETA] = rot.log_batch(rot.multiply_batch(np.array(rot.conjugate(after.q)), moved_q))
-    out[:, BIAS] = bias - after.bias
+    out[:, BIAS] = before.bias + gyro_error - after.bias
     out[:, VEL] = moved_velocity - after.velocity
-    out[:, ACC] = decay * accel - after.accel
-    out[:, ACCEL_BIAS] = before.accel_bias + sigmas[:, ACCEL_BIAS] - after.accel_bias
+    out[:, ACCEL_BIAS] = before.accel_bias + accel_error - after.accel_bias
     out[:, FEET] = (moved_feet - after.feet).reshape(count, -1)
     return out
 
@@ -69,7 +87,7 @@ class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args):
         sigmas = self.points_fn.sigma_points(self.x, self.P)
-        self.sigmas_f = propagate_errors(sigmas, dt, **fx_args)
+        self.sigmas_f = propagate_errors(sigmas, **fx_args)
 
 
 class UkfEstimator(FusionEstimator):
@@ -77,18 +95,19 @@ class UkfEstimator(FusionEstimator):
 
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, sigma: UkfConfig,
                  geometry: LegGeometry, foot_radius: float, gravity: float,
-                 imu_rotation: np.ndarray | None = None, imu_position: np.ndarray | None = None):
+                 imu_rotation: np.ndarray | None = None, imu_position: np.ndarray | None = None,
+                 startup_time: float = 0.0):
         points = MerweScaledSigmaPoints(ERROR_DIM, alpha=sigma.alpha, beta=sigma.beta, kappa=sigma.kappa)
         self.ukf = BatchUnscentedKalmanFilter(dim_x=ERROR_DIM, dim_z=3, dt=1e-3, hx=self._hx_specific_force,
                                               fx=self._fx, points=points)
         self.max_yaw_variance = math.radians(sigma.max_yaw_std_deg)**2
-        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position)
+        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time)
 
     @classmethod
     def from_config(cls, config: Config) -> "UkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, config.estimators.ukf,
                    LegGeometry.from_config(config.robot), config.robot.foot_radius, config.run.gravity,
-                   imu_rotation(config), imu_position(config))
+                   imu_rotation(config), imu_position(config), config.gait.startup_time)
 
     @property
     def P(self) -> np.ndarray:
@@ -101,41 +120,49 @@ class UkfEstimator(FusionEstimator):
     # -- models on sigma points ----------------------------------------------------------------
 
     @staticmethod
-    def _fx(dx: np.ndarray, dt: float, before: NominalState, after: NominalState, gyro: np.ndarray,
-            decay: float) -> np.ndarray:
+    def _fx(dx: np.ndarray, dt: float, before: NominalState, after: NominalState, pre: Preintegration,
+            gravity: float) -> np.ndarray:
         """The process model on one sigma point (filterpy's interface; see propagate_errors)."""
-        moved, _ = propagate(inject(before, dx), gyro, dt, decay)
+        moved, _ = apply_preintegration(inject(before, dx), corrected(pre, dx[BIAS], dx[ACCEL_BIAS]), gravity)
         return difference(moved, after)
 
     def _hx_specific_force(self, dx: np.ndarray) -> np.ndarray:
-        """fusion.predicted_specific_force of the sigma point, without building its whole state."""
+        """Gravity plus offset seen by the accelerometer at the sigma point."""
         ux, uy, uz = rot.up_in_body(rot.multiply(self.state.q, rot.exp(dx[0], dx[1], dx[2])))
-        return (self.state.accel + dx[ACC] + self.state.accel_bias + dx[ACCEL_BIAS]
-                + self.gravity * np.array([ux, uy, uz]))
+        return self.state.accel_bias + dx[ACCEL_BIAS] + self.gravity * np.array([ux, uy, uz])
 
-    def _hx_foot(self, dx: np.ndarray, leg: int) -> np.ndarray:
-        return self.state.feet[leg] + dx[FEET][3 * leg:3 * leg + 3]
+    def _hx_feet(self, dx: np.ndarray, index: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+        return nominal + dx[index]
 
     # -- filter core ---------------------------------------------------------------------------
 
-    def _predict(self, gyro: np.ndarray, dt: float) -> None:
-        decay = math.exp(-dt / self.noise.accel_time_constant)
-        after, _ = propagate(self.state, gyro, dt, decay)
-        self.ukf.Q = np.diag(self.noise.process(dt, decay))
-        self.ukf.predict(dt=dt, before=self.state, after=after, gyro=gyro, decay=decay)
+    def _predict(self) -> None:
+        pre = self.pre
+        before = self.state
+        after, _ = apply_preintegration(before, pre, self.gravity)
+        self.ukf.Q = np.diag(self.noise.process(pre.dt) + self._extra_noise())
+        self.ukf.predict(dt=pre.dt, before=before, after=after, pre=pre, gravity=self.gravity)
         self.state = after
         self._reset()
 
-    def _correct_specific_force(self, accel: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
-        return self._correct(accel, variance, gate, self._hx_specific_force)
+    def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
+        return self._correct(mean_force, variance, gate, self._hx_specific_force)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        """One foot after the other (sigma points are redrawn in between)."""
-        return np.array([self._correct(z, variance, gate, self._hx_foot, leg=leg)[0] for leg, z in zip(legs, measured)])
+        """The feet gated one by one on their blocks (h is linear: S_i = P_ii + R), then one update."""
+        innovation = measured - self.state.feet[legs]
+        blocks = [foot(leg) for leg in legs]
+        nis = np.array([y @ inverse3(self.P[b, b] + variance * I3) @ y for y, b in zip(innovation, blocks)])
+        accepted = nis <= gate
+        if accepted.any():
+            index = np.concatenate([np.arange(b.start, b.stop) for b, ok in zip(blocks, accepted) if ok])
+            nominal = self.state.feet[legs[accepted]].ravel()
+            self._correct(measured[accepted].ravel(), variance, math.inf, self._hx_feet, index=index, nominal=nominal)
+        return accepted
 
     def _correct(self, z: np.ndarray, variance: float, gate: float, hx, **hx_args) -> tuple[bool, float]:
         prior_x, prior_P = self.ukf.x.copy(), self.ukf.P.copy()
-        self.ukf.update(z, R=variance * np.eye(3), hx=hx, **hx_args)
+        self.ukf.update(z, R=variance * np.eye(len(z)), hx=hx, **hx_args)
         nis = float(self.ukf.y @ self.ukf.SI @ self.ukf.y)
         if not nis <= gate:
             self.ukf.x, self.ukf.P = prior_x, prior_P

@@ -15,8 +15,9 @@ from typing import Any, Sequence
 
 from datasets import commands as dataset_commands
 from testbed import config as config_module
-from testbed import profile as profile_cli
+from testbed import bench as bench_cli
 from testbed import sweep_cli
+from testbed import profile as profile_cli
 from testbed.errors import ConfigError, UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -160,8 +161,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_parser(subparsers)
     _add_export_parser(subparsers)
     dataset_commands.add_subcommands(subparsers)
-    profile_cli.add_subcommands(subparsers)
     sweep_cli.add_subcommands(subparsers)
+    profile_cli.add_subcommands(subparsers)
+    bench_cli.add_subcommands(subparsers)
     return parser
 
 

@@ -171,6 +171,9 @@ class GaitConfig:
     wave_period: float
     still_time: float
     start_ramp: float
+    calibration_tilt_deg: float
+    calibration_rate_dps: float
+    calibration_hold_time: float
 
     def __post_init__(self) -> None:
         finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
@@ -185,6 +188,15 @@ class GaitConfig:
         require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")
         require(math.isfinite(self.still_time) and 0.05 <= self.still_time <= 10,
                  f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
+        require(math.isfinite(self.calibration_tilt_deg) and 0 <= self.calibration_tilt_deg <= 20,
+                 f"gait.calibration_tilt_deg must lie in [0, 20], got {self.calibration_tilt_deg}")
+        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time)
+
+    @property
+    def startup_time(self) -> float:
+        """s from the start to the first step: standing still, then the calibration poses."""
+        from testbed.startup import CalibrationPoses
+        return CalibrationPoses.from_gait(self).end
 
     def period(self, gait: str) -> float:
         return {"tripod": self.tripod_period, "ripple": self.ripple_period, "wave": self.wave_period}.get(gait, 1.0)

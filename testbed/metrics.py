@@ -21,7 +21,7 @@ from testbed.terrain import Terrain
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
 SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
-POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the first second
+POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the first second and the start-up
 
 
 class RunMetrics:
@@ -64,6 +64,12 @@ class RunMetrics:
         self.body_position.append(truth.body_position)
         self.estimates.extend(tick.estimates)
 
+    def _mean_speed(self, distance: float, sim_time: float) -> float | None:
+        """Over the time the robot was commanded to walk: after the start-up (still, then the
+        calibration poses), ramp included."""
+        walking = sim_time - self.config.gait.startup_time
+        return distance / walking if walking > 0 and self.config.run.gait != "stand" else None
+
     def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
         ratio = self._normal_sum / self._normal_count / self.weight if self._normal_count else None
         displacement = self.last_xy - (self.start_xy if self.start_xy is not None else self.last_xy)
@@ -73,7 +79,7 @@ class RunMetrics:
             "fell": self.fell,
             "weight_support_ratio": ratio,
             "distance_m": float(np.linalg.norm(displacement)),
-            "mean_speed_mps": float(np.linalg.norm(displacement)) / sim_time if sim_time > 0 else None,
+            "mean_speed_mps": self._mean_speed(float(np.linalg.norm(displacement)), sim_time),
             "lateral_drift_m": float(abs(heading[0] * displacement[1] - heading[1] * displacement[0])),
             "target_error_m": float(np.linalg.norm(self.last_xy - target)) if target else None,
             "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
@@ -89,9 +95,10 @@ class RunMetrics:
 
     def posture_metrics(self) -> dict:
         """True body tilt from level and body height above the terrain under the body centre, minus
-        the commanded height, after the first second."""
+        the commanded height, after the first second and the start-up (whose calibration poses
+        tilt the body on purpose)."""
         t = np.array(self.truth_t)
-        keep = t >= POSTURE_SKIP
+        keep = t >= max(POSTURE_SKIP, self.config.gait.startup_time)
         if not keep.any():
             return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
         tilt = body_tilt_deg(np.array(self.truth_quaternion)[keep])

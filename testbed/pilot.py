@@ -16,6 +16,7 @@ from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
 from testbed.posture import PostureController, PostureMeasurement, estimated_height, kinematic_height
 from testbed.recording import Command
+from testbed.startup import CalibrationPoses
 
 
 def make_estimator_or_none(name: str, config: Config):
@@ -45,8 +46,10 @@ class Pilot:
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
         self.heading = GyroHeading(config.gait.still_time)
+        self.startup = CalibrationPoses.from_gait(config.gait)
+        self.startup_time = self.startup.end
         self.heading_reference = 0.0
-        self.imu_to_body_z = np.array(config.sensors.imu.body_from_sensor)[2]   # z row of body_from_imu
+        self.body_from_imu = np.array(config.sensors.imu.body_from_sensor)
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
@@ -58,16 +61,18 @@ class Pilot:
         posture error from the controller's."""
         estimates = self._absorb(samples)
         twist = self._twist(t)
-        gait_time = t - self.config.gait.still_time
+        gait_time = t - self.startup_time
         if self._walking(t):
             feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
             feet = self.gait.state.feet.copy()
         if self.posture is not None:
-            # The loops engage once the estimator had the still start-up to settle on gravity.
-            if t >= self.config.gait.still_time:
+            # The loops engage once the start-up (still, then the calibration poses) is over.
+            if t >= self.startup_time:
                 self.posture.update(self._posture_measurement(attitude), hold=self.ik_limited_last)
             feet = self.posture.apply(feet)
+        if t < self.startup_time:
+            feet = self.startup.apply(t, feet)
         self._solve_ik(feet)
         command = Command(t=t, phase=self.gait.phase(self.gait.clock(gait_time)), swinging=self.gait.state.swinging.copy(),
                           foot_targets=feet, joint_targets=self.joint_targets.copy(),
@@ -102,7 +107,7 @@ class Pilot:
                     estimates.append(estimate)
                     self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
-                self.heading.update(sample.t, float(self.imu_to_body_z @ sample.gyro))
+                self.heading.update(sample.t, self.body_from_imu @ sample.gyro)
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):
@@ -112,14 +117,14 @@ class Pilot:
         return estimates
 
     def _walking(self, t: float) -> bool:
-        """Walking gaits start once the gyro bias is calibrated on the still robot."""
-        return self.config.run.gait != "stand" and t >= self.config.gait.still_time
+        """Walking gaits start after the start-up: the still robot and its calibration poses."""
+        return self.config.run.gait != "stand" and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
         if not self._walking(t):
             return Twist()
         gait = self.config.gait
-        ramp = min(1.0, (t - gait.still_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
+        ramp = min(1.0, (t - self.startup_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
         if self.walker is not None:
             command = self.walker.command(self.odometry.pose)
             if self.walker.arrived:

@@ -52,7 +52,9 @@ def test_known_rotation_is_followed(name, config, spec, pivot):
     assert np.abs(errors).max() < 0.5         # a sign error would show as twice the 10 deg turn
     assert np.abs(errors[-1]).max() < 0.2     # Mahony's integral term still rings a little
     yaw_change = math.degrees(estimates[-1].yaw - estimates[0].yaw)
-    assert yaw_change == pytest.approx(20.0, abs=0.5)
+    # A sign error would give -20; VQF, its offset prior widened to the default IMU's 4 deg/s, reads
+    # about 1 deg of the turn as gyro offset.
+    assert yaw_change == pytest.approx(20.0, abs=1.5)
 
 
 @pytest.mark.parametrize("name", WITHOUT_UKF)

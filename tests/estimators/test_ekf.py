@@ -124,7 +124,9 @@ def test_gyro_bias_step_is_absorbed(runs, walk, config, spec):
     estimates, ekf = run_ekf(config, samples)
     clean = tilt_rmse_deg(runs.run("ekf", 2)[0], walk)
     assert ekf.bias_steps.detections >= 1
-    assert tilt_rmse_deg(estimates, walk) < 3 * clean
+    # The step costs 0.2 deg for the ~0.5 s until it is detected: 0.061 deg RMSE over the 6 s walk,
+    # against 0.020 clean (with the still-window gravity updates of the standing start).
+    assert tilt_rmse_deg(estimates, walk) < 3.5 * clean
     assert np.abs(tilt_errors_deg(estimates, walk)[-1000:]).max() < 0.1     # recovered
     _, _, true_bias = synthetic.imu_arrays(walk, spec, 2)
     assert np.degrees(np.abs(estimates[-1].gyro_bias[:2] - true_bias[:2] - step)).max() < 0.1
@@ -178,7 +180,7 @@ def test_accelerometer_offset_estimated_or_covered(config, walk, spec):
     """Offsets of the raw BMI088 (20 mg): estimated from the body's turns, the EKF beats VQF; as a
     consider state (the default), the covariance covers the tilt error they cause."""
     biased = replace(spec, accel_bias_std=0.196)
-    estimated = config.replace(estimators={"ekf": {"accel_bias_initial_std": 0.2, "accel_bias_estimation": True}})
+    estimated = config.replace(estimators={"ekf": {"accel_bias_initial_std": 0.2, "accel_bias_estimation": "always"}})
     considered = config.replace(estimators={"ekf": {"accel_bias_initial_std": 0.2}})
     anees = {"estimated": [], "considered": []}
     ekf_rmse, vqf_rmse = [], []

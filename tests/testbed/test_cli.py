@@ -27,11 +27,12 @@ def test_run_writes_the_foundation_metrics(tmp_path, capsys):
 
 def test_walking_run_reports_the_gait_metrics(tmp_path):
     metrics = tmp_path / "m.json"
-    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "3", "--metrics", str(metrics),
+    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "4.5", "--metrics", str(metrics),
                  "--out", str(tmp_path / "r.mcap")]) == 0
     data = json.loads(metrics.read_text())
-    # 0.5 s still, 1 s ramp, then 0.1 m/s: about 0.2 m in 3 s
-    assert 0.15 < data["distance_m"] < 0.25
+    # 2.2 s start-up (still, calibration poses), 1 s ramp, then 0.1 m/s: about 0.18 m in 4.5 s
+    assert 0.13 < data["distance_m"] < 0.23
+    assert 0.07 < data["mean_speed_mps"] < 0.09         # over the 2.3 s after the start-up
     assert data["min_stability_margin_m"] > 0.03
     assert data["target_error_m"] is None and data["ik_limited_ticks"] == 0
     assert data["lateral_drift_m"] < 0.05 * data["distance_m"]

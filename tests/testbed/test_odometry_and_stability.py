@@ -5,7 +5,7 @@ import pytest
 
 from testbed import config
 from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
-from testbed.odometry import LegOdometry
+from testbed.odometry import GyroHeading, LegOdometry
 from testbed.stability import stability_margin, support_polygon
 
 CFG = config.load()
@@ -137,3 +137,31 @@ def test_odometry_trusts_the_feet_that_cannot_roll():
     plain_error, weighted_error = abs(plain.x - x), abs(weighted.x - x)
     assert plain_error > 2e-4                           # a percent of the distance
     assert weighted_error < 0.2 * plain_error
+
+
+def test_gyro_heading_ignores_turns_of_a_tilted_body():
+    """The start-up's path in (roll, pitch): level -> roll -12 deg -> pitch +12 deg (both changing at
+    once) -> level, yaw zero throughout. While tilted the body z rate is not the yaw rate: summed
+    alone it turns the heading; the integrated rotation does not. A 0.5 deg/s bias, averaged at the
+    still start, is removed."""
+    from scipy.spatial.transform import Rotation
+
+    dt, bias = 1e-3, np.radians([0.5, -0.5, 0.5])
+    heading = GyroHeading(calibration_time=0.2)
+    t = 0.0
+    for _ in range(200):
+        heading.update(t, bias)
+        t += dt
+    waypoints = np.radians([[0.0, 0.0], [-12.0, 0.0], [0.0, 12.0], [0.0, 0.0]])
+    path = np.concatenate([np.linspace(a, b, 200, endpoint=False) for a, b in zip(waypoints, waypoints[1:])]
+                          + [waypoints[-1:]])
+    attitudes = Rotation.from_euler("ZYX", np.column_stack([np.zeros(len(path)), path[:, 1], path[:, 0]]))
+    z_sum, largest = 0.0, 0.0
+    for before, after in zip(attitudes[:-1], attitudes[1:]):
+        turn = (before.inv() * after).as_rotvec()          # body frame
+        heading.update(t, turn / dt + bias)
+        z_sum += turn[2]
+        largest = max(largest, abs(heading.yaw))
+        t += dt
+    assert abs(np.degrees(z_sum)) > 1.0            # what summing the z rate alone would say
+    assert np.degrees(largest) < 1e-6

@@ -23,9 +23,9 @@ class Collect(NullRecorder):
 
 
 def test_still_accelerometer_reads_gravity_in_the_body_frame():
-    """Standing on flat ground, an IMU without systematic errors averages R^T (0, 0, g)."""
+    """Standing on flat ground (no calibration poses), an IMU without systematic errors averages R^T (0, 0, g)."""
     perfect = {"turn_on_bias": 0.0, "scale_factor": 0.0, "misalignment": 0.0, "bias_instability": 0.0}
-    cfg = config.load(overrides={"run": {"duration": 2.0},
+    cfg = config.load(overrides={"run": {"duration": 2.0}, "gait": {"calibration_tilt_deg": 0.0},
                                  "sensors": {"imu": {"accel": perfect, "gyro": perfect}}})
     collect = Collect()
     run(cfg, collect)

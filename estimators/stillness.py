@@ -1,0 +1,56 @@
+"""Still windows: spans in which the body neither turns nor shakes, so that the mean specific force
+is gravity (plus the accelerometer's offset) with the sensor's noise alone.
+
+The fusion filters otherwise see gravity only through the legs: a tilt error makes the strapdown
+velocity drift, and the feet notice within a few steps. That is weak over short spans (a 1 mg
+error moves a foot 0.05 mm in 0.1 s, a sixth of its kinematic noise), which is what a still body
+can do better: its mean specific force over 50 ms measures the gravity direction to ~1 mg. Here,
+with the start-up calibration poses (testbed/startup.py), that is what tells the accelerometer's
+offset from a tilt. The test is the zero-velocity detector of pedestrian and legged navigation
+(Skog et al. 2010, "Zero-velocity detection: an algorithm evaluation"): the angular rate and the
+specific force stay within thresholds for the whole window. Windows do not overlap, so no sample
+is used twice.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class StillWindow:
+    def __init__(self, duration: float, max_rate: float, max_force_change: float):
+        self.duration = duration                    # s
+        self.max_rate = max_rate                    # rad/s, per interval, after the gyro bias
+        self.max_force_change = max_force_change    # m/s^2, an interval's mean force from the window's first
+        self._time = 0.0
+        self._force_sum = np.zeros(3)
+        self._first: np.ndarray | None = None
+
+    def add(self, dt: float, turn: np.ndarray, force: np.ndarray) -> np.ndarray | None:
+        """An interval of `dt` s with the gyro's rotation vector `turn` and the mean specific force
+        `force`. Returns the window's mean specific force when a still window completes."""
+        x, y, z = turn
+        still = math.sqrt(x * x + y * y + z * z) <= self.max_rate * dt
+        if still and self._first is not None:
+            first, limit = self._first, self.max_force_change
+            still = abs(force[0] - first[0]) <= limit and abs(force[1] - first[1]) <= limit and \
+                abs(force[2] - first[2]) <= limit
+        if not still:
+            self.reset()
+            return None
+        if self._first is None:
+            self._first = np.array(force, dtype=float)
+        self._force_sum += force * dt
+        self._time += dt
+        if self._time < self.duration - 1e-9:     # sums of dt round
+            return None
+        mean = self._force_sum / self._time
+        self.reset()
+        return mean
+
+    def reset(self) -> None:
+        self._time = 0.0
+        self._force_sum[:] = 0.0
+        self._first = None

@@ -1,0 +1,79 @@
+"""The start-up routine: still, then calibration poses on planted feet (testbed/startup.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sensors.suite import SensorSuite
+from testbed import config as config_module
+from testbed.errors import ConfigError
+from testbed.kinematics import foot_positions
+from testbed.pilot import Pilot
+from testbed.runner import build_simulation, true_roll_pitch
+from testbed.startup import POSES, CalibrationPoses, minimum_jerk
+
+TILT = math.radians(12.0)
+
+
+@pytest.fixture(scope="module")
+def poses() -> CalibrationPoses:
+    return CalibrationPoses(still=0.3, tilt=TILT, rate=math.radians(100.0), hold=0.2)
+
+
+def test_minimum_jerk_starts_and_ends_at_rest():
+    assert minimum_jerk(0.0) == 0.0 and minimum_jerk(1.0) == 1.0 and minimum_jerk(0.5) == pytest.approx(0.5)
+    h = 1e-6
+    for s in (0.0, 1.0):
+        assert abs(minimum_jerk(s + h) - minimum_jerk(s - h)) / (2 * h) < 1e-5
+
+
+def test_schedule_visits_every_pose_and_ends_level(poses):
+    # Moves of 12, 24, 17, 24 and 12 deg at 100 deg/s mean, five 0.2 s holds after the 0.3 s still.
+    path = math.degrees(TILT) * (1 + 2 + math.sqrt(2) + 2 + 1)
+    assert poses.end == pytest.approx(0.3 + path / 100.0 + 5 * 0.2)
+    assert poses.body_tilt(0.2) == (0.0, 0.0) and poses.body_tilt(poses.end + 0.1) == (0.0, 0.0)
+    t = np.arange(0.0, poses.end, 1e-3)
+    tilts = np.array([poses.body_tilt(x) for x in t])
+    for pose in POSES:
+        held = np.all(np.isclose(tilts, TILT * np.array(pose), atol=1e-12), axis=1)
+        assert held.sum() >= 199, pose       # held 0.2 s at 1 ms
+    # Smooth: no step larger than the peak rate of a minimum-jerk move (1.875 x its mean) allows.
+    assert np.max(np.abs(np.diff(tilts, axis=0))) <= 1.875 * math.radians(100.0) * 1e-3 * 1.01
+
+
+def test_no_tilt_means_no_poses():
+    poses = CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2)
+    assert poses.end == 0.5 and poses.body_tilt(0.7) == (0.0, 0.0)
+
+
+def test_the_poses_tilt_the_body_feet_planted():
+    """In the physics: the true body reaches each pose within 0.3 deg and the feet stay within 1.5 mm (they roll)."""
+    config = config_module.load().replace(run={"gait": "stand", "duration": 2.5, "seed": 7})
+    sim = build_simulation(config)
+    sensors = SensorSuite.from_config(config)
+    pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
+    poses = pilot.startup
+    truth = sim.truth()
+    command, _ = pilot.tick(sim.time, sensors.update(truth))
+    start_feet = truth.foot_positions[:, :2].copy()
+    reached = []
+    for _ in range(int(round(poses.end / config.run.time_step))):
+        sim.step(command.joint_targets)
+        truth = sim.truth()
+        command, _ = pilot.tick(sim.time, sensors.update(truth))
+        commanded = poses.body_tilt(sim.time)
+        if commanded != (0.0, 0.0) and poses.body_tilt(sim.time - 0.1) == commanded:     # 0.1 s into a hold
+            reached.append(np.subtract(true_roll_pitch(truth), commanded))
+    assert len(reached) > 100
+    assert np.max(np.abs(reached)) < math.radians(0.3)
+    assert np.max(np.linalg.norm(truth.foot_positions[:, :2] - start_feet, axis=1)) < 1.5e-3
+
+
+@pytest.mark.parametrize("key, value", [("calibration_tilt_deg", 25.0), ("calibration_tilt_deg", -1.0),
+                                        ("calibration_rate_dps", 0.0), ("calibration_hold_time", -0.1)])
+def test_bad_calibration_settings_are_refused(key, value):
+    with pytest.raises(ConfigError, match="calibration"):
+        config_module.load().replace(gait={key: value})
