@@ -312,6 +312,11 @@ def write_docs(result: BenchResult, checks: Sequence[Check], docs: Path = DOCS) 
 ESTIMATORS_FRAGMENT = "estimators.md"
 
 
+def write_fragment(name: str, text: str, docs: Path = DOCS) -> None:
+    """A benchmark's section of docs/results.md: docs/results/<name>, included by `results_page`."""
+    _write_atomically(docs / "results" / name, text.encode())
+
+
 def results_page(docs: Path = DOCS) -> str:
     """docs/results/estimators.md first, then every other fragment docs/results/*.md by name,
     verbatim."""
