@@ -21,10 +21,10 @@ predicted velocity drift at g [u]x dtheta, which the stance feet see within a fe
 kinematics are what separate gravity from walking accelerations (the accelerometer reads both).
 A constant accelerometer offset looks exactly like a tilt; the two separate only as the body turns
 about a horizontal axis: b_a is estimated during the start-up calibration poses (testbed/startup.py:
-the body tilts +-12 deg in roll and pitch on planted feet, the feet states tell the rotation), then
-held as a "consider" state (Schmidt-Kalman): no update moves it, its covariance widens the tilt's. While no foot is tracked (encoder dropout), the mean
-specific force of each step corrects the tilt as a gravity-direction measurement, its noise the
-body acceleration.
+the body tilts +-12 deg in roll and pitch on planted feet; still windows, estimators/stillness.py,
+measure gravity), then held as a "consider" state (Schmidt-Kalman): no update moves it, its
+covariance widens the tilt's. While no foot is tracked (encoder dropout), the mean specific force
+of each step corrects the tilt as a gravity-direction measurement, its noise the body acceleration.
 """
 
 from __future__ import annotations
@@ -115,10 +115,7 @@ def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
     covariance[THETA, THETA] = tilt**2 * (np.eye(3) - vertical) + yaw**2 * vertical
     covariance[BIAS, BIAS] = params.gyro_bias_initial_std**2 * np.eye(3)
     covariance[VEL, VEL] = params.initial_velocity_std**2 * np.eye(3)
-    # The stance feet's systematic creep acceleration aliases into the tilt exactly as an offset does.
     covariance[ACCEL_BIAS, ACCEL_BIAS] = params.accel_bias_initial_std**2 * np.eye(3)
-    if params.accel_bias_estimation == "never":
-        covariance[ACCEL_BIAS, ACCEL_BIAS] += params.foot_creep_accel_std**2 * np.eye(3)
     covariance[FEET, FEET] = params.foot_position_std**2 * np.eye(3 * NUM_FEET)    # restarted at touchdown
     return covariance
 
@@ -220,7 +217,7 @@ class FusionEstimator(Estimator):
         # accelerometer offset, once the start-up poses are over (`startup_time`, s).
         self.learn_accel_bias_until = {"always": math.inf, "startup": startup_time,
                                        "never": -math.inf}[params.accel_bias_estimation]
-        self.consider = None if self.learn_accel_bias_until > 0 else ACCEL_BIAS
+        self.consider: slice | None = None      # set by _hold_accel_bias
         self.state: NominalState | None = None
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
@@ -321,7 +318,8 @@ class FusionEstimator(Estimator):
         self._new_interval()
 
     def _hold_accel_bias(self) -> None:
-        """The start-up poses are over: the accelerometer offset becomes a consider state, its
+        """The start-up poses are over (or there are none to learn from, "never"): the
+        accelerometer offset becomes a consider state, its
         variance widened by the stance feet's creep acceleration, which aliases into the tilt
         exactly as an offset does."""
         self.consider = ACCEL_BIAS
@@ -349,6 +347,8 @@ class FusionEstimator(Estimator):
         self.state = NominalState(q, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros((NUM_FEET, 3)))
         self.P = initial_covariance(self.params, q)
         self.t = t
+        if t >= self.learn_accel_bias_until:
+            self._hold_accel_bias()
         self.pre.remember(gyro, accel)
         self._new_interval()
         return self._estimate(t)

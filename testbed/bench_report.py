@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testbed.bench import (BASELINES, FAULT_RATIO_TARGET, BenchResult, Check, ReplayResult, Row, summary_rows)
+from testbed.bench import FAULT_RATIO_TARGET, BenchResult, Check, ReplayResult, Row, summary_rows
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 METRIC_COLUMNS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",

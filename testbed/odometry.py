@@ -26,12 +26,9 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-import math
-
 import numpy as np
 
 from estimators import rotations as rot
-
 from testbed.kinematics import LegGeometry, foot_positions
 
 # m: one foot's position error from the encoders (0.9 mrad per joint of noise and quantization
@@ -164,6 +161,5 @@ class GyroHeading:
             dt = t - self._last_t
             wx, wy, wz = (rate - self.bias) * dt
             self._attitude = rot.rotate_by_vector(self._attitude, wx, wy, wz)
-            x, y, z, w = self._attitude
-            self.yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+            self.yaw = rot.euler_from_quaternion(self._attitude)[2]
         self._last_t = t

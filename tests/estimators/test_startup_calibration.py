@@ -3,39 +3,31 @@ estimators/stillness.py), in the physics: an offset reads exactly as a tilt unti
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
 from sensors.suite import SensorSuite
 from testbed import config as config_module
-from testbed.kinematics import foot_positions
-from testbed.pilot import Pilot
-from testbed.runner import build_simulation, true_roll_pitch
+from testbed.runner import run, true_roll_pitch
+from tests.recorders import Collect
 
 OFFSET_STD = 0.098      # m/s^2: 10 mg per axis, five times the default IMU's calibrated residual
 
 
 def stand_and_measure(estimator: str, tilt_deg: float, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """Stand through the start-up and 0.3 s more; (roll, pitch) error at the end, rad, and the
-    accelerometer's true turn-on offset, m/s^2."""
+    accelerometer's true turn-on offset, m/s^2 (the run's sensors, drawn again from its seed)."""
     config = config_module.load().replace(
-        run={"gait": "stand", "seed": seed, "estimator": estimator, "duration": 3.0},
+        run={"gait": "stand", "seed": seed, "estimator": estimator},
         gait={"calibration_tilt_deg": tilt_deg}, sensors={"imu": {"accel": {"turn_on_bias": OFFSET_STD}}},
         estimators={"ekf": {"accel_bias_initial_std": OFFSET_STD}})     # the filter's belief matches the part
-    sim = build_simulation(config)
-    sensors = SensorSuite.from_config(config)
-    pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
-    truth = sim.truth()
-    command, _ = pilot.tick(sim.time, sensors.update(truth))
-    for _ in range(int(round((config.gait.startup_time + 0.3) / config.run.time_step))):
-        sim.step(command.joint_targets)
-        truth = sim.truth()
-        command, _ = pilot.tick(sim.time, sensors.update(truth))
-    estimate = pilot.latest_estimate
-    error = np.subtract((estimate.roll, estimate.pitch), true_roll_pitch(truth))
-    return error, sensors.imu.channels.triads[0].turn_on_bias
+    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
+    collect = Collect()
+    run(config, collect)
+    last = collect.ticks[-1]
+    estimate = [tick.estimates[-1] for tick in collect.ticks if tick.estimates][-1]
+    error = np.subtract((estimate.roll, estimate.pitch), true_roll_pitch(last.truth))
+    return error, SensorSuite.from_config(config).imu.channels.triads[0].turn_on_bias
 
 
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])

@@ -6,20 +6,8 @@ import pytest
 
 from sensors.samples import ImuSample
 from testbed import config
-from testbed.recording import NullRecorder
 from testbed.runner import run
-
-
-class Collect(NullRecorder):
-    def __init__(self):
-        self.ticks = []
-        self.finished = None
-
-    def record(self, tick):
-        self.ticks.append(tick)
-
-    def finish(self, metrics, error):
-        self.finished = (metrics, error)
+from tests.recorders import Collect
 
 
 def test_still_accelerometer_reads_gravity_in_the_body_frame():

@@ -7,13 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from sensors.suite import SensorSuite
 from testbed import config as config_module
 from testbed.errors import ConfigError
-from testbed.kinematics import foot_positions
-from testbed.pilot import Pilot
-from testbed.runner import build_simulation, true_roll_pitch
+from testbed.runner import run, true_roll_pitch
 from testbed.startup import POSES, CalibrationPoses, minimum_jerk
+from tests.recorders import Collect
 
 TILT = math.radians(12.0)
 
@@ -52,24 +50,18 @@ def test_no_tilt_means_no_poses():
 def test_the_poses_tilt_the_body_feet_planted():
     """In the physics: the true body reaches each pose within 0.3 deg and the feet stay within 1.5 mm (they roll)."""
     config = config_module.load().replace(run={"gait": "stand", "duration": 2.5, "seed": 7})
-    sim = build_simulation(config)
-    sensors = SensorSuite.from_config(config)
-    pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
-    poses = pilot.startup
-    truth = sim.truth()
-    command, _ = pilot.tick(sim.time, sensors.update(truth))
-    start_feet = truth.foot_positions[:, :2].copy()
+    poses = CalibrationPoses.from_gait(config.gait)
+    collect = Collect()
+    run(config.replace(run={"duration": poses.end}), collect)
     reached = []
-    for _ in range(int(round(poses.end / config.run.time_step))):
-        sim.step(command.joint_targets)
-        truth = sim.truth()
-        command, _ = pilot.tick(sim.time, sensors.update(truth))
-        commanded = poses.body_tilt(sim.time)
-        if commanded != (0.0, 0.0) and poses.body_tilt(sim.time - 0.1) == commanded:     # 0.1 s into a hold
-            reached.append(np.subtract(true_roll_pitch(truth), commanded))
+    for tick in collect.ticks:
+        commanded = poses.body_tilt(tick.truth.t)
+        if commanded != (0.0, 0.0) and poses.body_tilt(tick.truth.t - 0.1) == commanded:     # 0.1 s into a hold
+            reached.append(np.subtract(true_roll_pitch(tick.truth), commanded))
     assert len(reached) > 100
     assert np.max(np.abs(reached)) < math.radians(0.3)
-    assert np.max(np.linalg.norm(truth.foot_positions[:, :2] - start_feet, axis=1)) < 1.5e-3
+    start_feet, end_feet = collect.ticks[0].truth.foot_positions, collect.ticks[-1].truth.foot_positions
+    assert np.max(np.linalg.norm(end_feet[:, :2] - start_feet[:, :2], axis=1)) < 1.5e-3
 
 
 @pytest.mark.parametrize("key, value", [("calibration_tilt_deg", 25.0), ("calibration_tilt_deg", -1.0),
