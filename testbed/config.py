@@ -165,6 +165,8 @@ class GaitConfig:
     cruise_turn_rate: float
     heading_gain: float
     swing_height: float
+    touchdown_search_speed: float
+    touchdown_search_depth: float
     max_step_length: float
     tripod_period: float
     ripple_period: float
@@ -183,6 +185,7 @@ class GaitConfig:
         require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
         finite("gait.target", *self.target)
         positive("gait.target_tolerance", self.target_tolerance)
+        positive("gait touch-down search", self.touchdown_search_speed, self.touchdown_search_depth)
         positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
                          self.max_step_length, self.tripod_period, self.ripple_period, self.wave_period)
         require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")

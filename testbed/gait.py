@@ -8,7 +8,13 @@ follows the paper's elliptic path (Figure 4) from lift-off to the next touch-dow
 step ahead of its neutral point: horizontally (1 - cos(pi u)) / 2 of the way, vertically
 swing_height * sin(pi u), u the swing phase: an ellipse with semi-axes step/2 and swing_height.
 
-With terrain adaptation (the posture controller's, from the foot contact sensors, never truth):
+Touch-down confirmation (from the foot contact sensors, never truth): a swing ends when its foot
+reports ground; one that has not found it at the scheduled touch-down keeps reaching down, a
+little, while the gait clock waits, so that no leg lifts before the leg it relieves carries weight.
+The swing command runs ahead of the gait clock by the servos' time constant, so that the lagging
+foot itself follows the ellipse on schedule.
+
+With terrain adaptation (the posture controller's, from the same sensors):
 a swing aims at the plane of the stance feet instead of the flat ground of the start stance, lands
 where its foot sensor first reports ground in the second part of the swing, and, finding no ground
 where it expected it, keeps reaching down while the gait clock waits, so that no leg lifts before
@@ -18,6 +24,7 @@ the body climbs a slope or steps down a step with the feet.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,13 +67,25 @@ class TerrainAdaptation:
     search_speed: float         # m/s, a foot that found no ground keeps reaching down this fast
     search_depth: float         # m below the expected ground, the leg's workspace
     touchdown_phase: float      # contact after this fraction of the swing lands the foot
-    plane_time_constant: float  # s, the gait frame's height follows the stance feet's plane
+    plane_time_constant: float  # s, the gait frame's height follows the stance feet's plane; inf: it stays
+
+    @property
+    def follows_terrain(self) -> bool:
+        return math.isfinite(self.plane_time_constant)
+
+    @staticmethod
+    def confirmation(search_speed: float, search_depth: float) -> "TerrainAdaptation":
+        """Touch-down confirmation alone: a swing ends when its foot touches at the end of the
+        ellipse, or after reaching down at most `search_depth` for the ground; the gait frame
+        stays level and a foot that touches early keeps to its plan (the gait knows no terrain)."""
+        return TerrainAdaptation(search_speed, search_depth, 1.0, math.inf)
 
 
 class GaitGenerator:
     def __init__(self, name: str, neutral: np.ndarray, period: float, swing_height: float,
-                 adaptation: TerrainAdaptation | None = None):
+                 adaptation: TerrainAdaptation | None = None, lead: float = 0.0):
         self.name = name
+        self.lead = lead            # s, the swing command runs this far ahead of the gait clock
         self.adaptation = adaptation
         self.waited = 0.0           # s the gait clock stood still for feet searching the ground
         self.scheduled = np.zeros(6, bool)
@@ -101,7 +120,15 @@ class GaitGenerator:
         return self.phase(t) >= self.duty
 
     def swing_progress(self, t: float) -> np.ndarray:
-        return np.clip((self.phase(t) - self.duty) / (1.0 - self.duty), 0.0, 1.0)
+        return self._progress(self.phase(t))
+
+    def _progress(self, phase: np.ndarray) -> np.ndarray:
+        """Where each swing's command is on its ellipse: the phase's share of the swing plus the
+        lead, so that the servos' first-order lag (time constant `lead`) puts the foot itself on
+        the ellipse on schedule and on the ground at the scheduled touch-down; the command then
+        waits at the touch-down point."""
+        swing_time = (1.0 - self.duty) * self.period
+        return np.clip((phase - self.duty) / (1.0 - self.duty) + self.lead / swing_time, 0.0, 1.0)
 
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
@@ -113,10 +140,11 @@ class GaitGenerator:
 
     def step(self, t: float, dt: float, command: Twist, contact: np.ndarray | None = None,
              measured: np.ndarray | None = None) -> np.ndarray:
-        """Advance to time t; returns (6, 3) foot targets in the body frame. The terrain adaptation
-        uses `contact` (the foot sensors) and `measured`, the feet where the joint encoders put them
-        (gait frame): a foot lands where it touched, not where its lagging target had got to."""
-        if self.adaptation is not None:
+        """Advance to time t; returns (6, 3) foot targets in the body frame. Touch-down confirmation
+        and terrain adaptation use `contact` (the foot sensors) and `measured`, the feet where the
+        joint encoders put them (gait frame): a foot lands where it touched, not where its lagging
+        target had got to. Without `contact` the gait follows its schedule blindly."""
+        if self.adaptation is not None and contact is not None:
             return self._adaptive_step(t, dt, command, np.asarray(contact, dtype=bool), measured)
         state = self.state
         swing = self.scheduled_swing(t)
@@ -158,11 +186,17 @@ class GaitGenerator:
         if self.stopping:
             scheduled &= self.scheduled | state.swinging
         lifting = scheduled & ~self.scheduled
-        progress = np.clip((phase - self.duty) / (1.0 - self.duty), 0.0, 1.0)
+        progress = self._progress(phase)
         # Ground found in the second part of a swing, or at or after its scheduled end: land there.
         touched = state.swinging & contact & (~scheduled | (progress >= adaptation.touchdown_phase))
         if measured is not None:
-            state.feet[touched] = measured[touched]
+            # Terrain following lands a foot where it touched; touch-down confirmation alone only
+            # a foot that had to reach down (its target ran ahead of it), and keeps the plan else.
+            found = touched if adaptation.follows_terrain else touched & self.searching
+            state.feet[found] = measured[found]
+        if not adaptation.follows_terrain:
+            planned = touched & ~self.searching     # ends its ellipse at the touch-down point
+            state.feet[planned] = self._touchdown(command)[planned]
         state.swinging &= ~touched
         searching = state.swinging & ~scheduled
         self.searching = searching
@@ -173,13 +207,15 @@ class GaitGenerator:
         state.liftoff[lifting] = state.feet[lifting]
         state.swinging |= lifting
         self.scheduled = scheduled
-        plane = self._walk_plane()
         touchdown = self._touchdown(command)
-        touchdown[:, 2] = plane[0] + touchdown[:, :2] @ plane[1:]
+        if adaptation.follows_terrain:
+            plane = self._walk_plane()
+            touchdown[:, 2] = plane[0] + touchdown[:, :2] @ plane[1:]
         self._move_stance(~state.swinging, command, dt)
         self._move_swing(progress, state.swinging & scheduled, touchdown)
         self.search_floor[state.swinging] = touchdown[state.swinging, 2] - adaptation.search_depth
-        self._follow_walk_plane(plane[0], dt)
+        if adaptation.follows_terrain:
+            self._follow_walk_plane(plane[0], dt)
         return state.feet.copy()
 
     def _search(self, searching: np.ndarray, dt: float) -> None:

@@ -25,6 +25,7 @@ from testbed.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
 CONTACT_DEBOUNCE = 0.005  # s: a foot that touched the ground this recently still supports
+GROUND_TOLERANCE = 0.001  # m: a stance foot this close to the ground still supports
 
 
 @dataclass
@@ -41,21 +42,29 @@ def build_simulation(config: Config) -> Simulation:
 
 
 class SupportTracker:
-    """The support polygon of the stance feet: the feet on the ground (a touch within
-    CONTACT_DEBOUNCE counts, so a rigid contact's one-step chatter is not a lift-off)."""
+    """The support polygon of the stance feet: the feet on the ground. A touch within
+    CONTACT_DEBOUNCE counts, so a rigid contact's one-step chatter is not a lift-off, and so does
+    a foot the gait holds in stance within GROUND_TOLERANCE of the ground: DART's rigid contact
+    lets loaded feet spring off by a fraction of a millimetre for a few steps after an impact."""
 
-    def __init__(self):
+    def __init__(self, terrain, foot_radius: float):
+        self.terrain = terrain
+        self.foot_radius = foot_radius
         self.last_touch = np.full(6, -np.inf)
 
-    def polygon(self, truth) -> np.ndarray:
+    def polygon(self, truth, stance: np.ndarray) -> np.ndarray:
         self.last_touch[truth.foot_contact] = truth.t
         supporting = truth.t - self.last_touch <= CONTACT_DEBOUNCE
+        resting = stance & ~supporting
+        if resting.any():
+            gap = self.terrain.closest(truth.foot_positions[resting])[0] - self.foot_radius
+            supporting[resting] = gap <= GROUND_TOLERANCE
         return support_polygon(truth.foot_positions[supporting, :2])
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
     contacts = sim.contacts()
-    polygon = support.polygon(truth)
+    polygon = support.polygon(truth, ~command.swinging)
     return Tick(truth=truth, truth_quaternion=sim.body_quaternion(),
                 contacts=contacts, support_polygon=polygon,
                 stability_margin=stability_margin(polygon, truth.com_position[:2]),
@@ -87,7 +96,7 @@ def run(config: Config, recorder: Recorder | None = None, truth_attitude: bool =
     sensors = SensorSuite.from_config(config)
     pilot = Pilot(config, sim.geometry, foot_positions(sim.geometry, sim.standing_targets), sim.standing_targets)
     metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, terrain=sim.terrain)
-    support = SupportTracker()
+    support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
     outcome = RunOutcome(metrics={})
     recorder.start(config, sim.urdf, sim.terrain)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from testbed import config
-from testbed.gait import GAIT_TABLE, GaitGenerator, Twist
+from testbed.gait import GAIT_TABLE, GaitGenerator, TerrainAdaptation, Twist
 from testbed.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -95,3 +95,61 @@ def test_stop_finishes_swings_then_keeps_all_feet_down():
         gait.step(k * DT, DT, Twist())
     assert not gait.state.swinging.any()
     assert np.allclose(gait.state.feet[:, 2], NEUTRAL[:, 2])
+
+
+def run_gait(gait, seconds, command=Twist(vx=0.1), ground=None):
+    """Feet and swing flags per tick; with `ground` (z per leg, body frame) the feet report
+    contact when their target reaches it, as a foot sensor on a rigid floor would."""
+    feet, swinging = [], []
+    for k in range(1, int(round(seconds / DT)) + 1):
+        contact = None if ground is None else gait.state.feet[:, 2] <= ground + 1e-9
+        feet.append(gait.step(k * DT, DT, command, contact, None if ground is None else gait.state.feet.copy()))
+        swinging.append(gait.state.swinging.copy())
+    return np.array(feet), np.array(swinging)
+
+
+def test_the_swing_command_leads_the_clock_and_stays_on_the_ellipse():
+    lead, period, height, speed = 0.033, 1.0, 0.03, 0.1
+    gait = GaitGenerator("tripod", NEUTRAL, period, height, lead=lead)
+    feet, swinging = run_gait(gait, 3.0, Twist(vx=speed))
+    leg, step = 0, speed * 0.5 * period
+    swing = np.flatnonzero(swinging[:, leg])
+    arc = feet[swing[(swing >= 1000) & (swing < 2000)], leg]       # the swing of the second cycle
+    ellipse = ((arc[:, 0] - NEUTRAL[leg, 0]) / (step / 2)) ** 2 + ((arc[:, 2] - NEUTRAL[leg, 2]) / height) ** 2
+    assert np.allclose(ellipse, 1.0, atol=0.02)
+    # The command is down at the touch-down point `lead` before the scheduled touch-down, and waits.
+    down = np.abs(arc[:, 2] - NEUTRAL[leg, 2]) < 1e-12
+    assert down[-1] and down.sum() == pytest.approx(lead / DT, abs=2)
+    assert np.all(down[np.argmax(down):])
+    # It left the ground at once: the first tick is already `lead` into the ellipse.
+    assert arc[0, 2] - NEUTRAL[leg, 2] == pytest.approx(height * np.sin(np.pi * (lead + DT) / 0.5), rel=0.05)
+
+
+def test_a_foot_that_finds_no_ground_reaches_down_a_little_while_the_clock_waits():
+    depth = 0.01
+    gait = GaitGenerator("wave", NEUTRAL, 1.5, 0.03, TerrainAdaptation.confirmation(0.1, depth), lead=0.02)
+    ground = NEUTRAL[:, 2].copy()
+    ground[0] -= 0.004                      # the front left foot's ground is 4 mm low
+    feet, swinging = run_gait(gait, 3.0, Twist(vx=0.04), ground)
+    # Leg 1 swings twice and searches 4 mm at 0.1 m/s each time: the clock waits about 40 ms each.
+    assert gait.waited == pytest.approx(0.08, abs=0.01)
+    assert feet[:, 0, 2].min() == pytest.approx(ground[0], abs=2e-4)
+    # No other leg lifts while it searches: at most one leg is ever in the air (wave).
+    assert swinging.sum(axis=1).max() == 1
+    # A floor deeper than the search depth: the foot stops at the depth and the walk goes on.
+    gait = GaitGenerator("wave", NEUTRAL, 1.5, 0.03, TerrainAdaptation.confirmation(0.1, depth), lead=0.02)
+    ground[0] = NEUTRAL[0, 2] - 0.05
+    feet, _ = run_gait(gait, 3.0, Twist(vx=0.04), ground)
+    assert feet[:, 0, 2].min() == pytest.approx(NEUTRAL[0, 2] - depth, abs=1e-9)
+    assert gait.waited == pytest.approx(2 * depth / 0.1, abs=0.01)
+
+
+def test_touchdown_confirmation_keeps_the_plan_where_a_foot_touches_early():
+    """Without terrain following, a foot that meets higher ground before its touch-down point keeps
+    to its planned height (the gait knows no terrain; the posture controller's adaptation lands it)."""
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, TerrainAdaptation.confirmation(0.1, 0.01), lead=0.02)
+    ground = NEUTRAL[:, 2] + 0.005          # 5 mm higher everywhere than the start stance
+    feet, swinging = run_gait(gait, 2.5, Twist(vx=0.1), ground)
+    stance = ~swinging[-1]
+    assert stance.sum() == 3 and np.allclose(feet[-1, stance, 2], NEUTRAL[stance, 2], atol=1e-12)
+    assert gait.waited == 0.0

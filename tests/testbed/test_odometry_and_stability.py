@@ -165,3 +165,27 @@ def test_gyro_heading_ignores_turns_of_a_tilted_body():
         t += dt
     assert abs(np.degrees(z_sum)) > 1.0            # what summing the z rate alone would say
     assert np.degrees(largest) < 1e-6
+
+
+def test_support_counts_touching_feet_and_stance_feet_resting_on_the_ground():
+    from types import SimpleNamespace
+    from testbed.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
+    from testbed.terrain import make_terrain
+    terrain = make_terrain("flat", CFG.terrain, np.random.default_rng(0))
+    radius = CFG.robot.foot_radius
+    support = SupportTracker(terrain, radius)
+    feet = np.column_stack([NEUTRAL[:, :2], np.full(6, radius)])
+    feet[1, 2] += 0.5 * GROUND_TOLERANCE        # a stance foot sprung off the ground after an impact
+    feet[3, 2] += 0.5 * GROUND_TOLERANCE        # a swing foot just above the ground
+    feet[5, 2] += 0.02                          # a stance foot hanging in the air
+    touching = np.array([1, 0, 1, 1, 1, 0], bool)     # the swing foot brushes the ground
+    stance = np.array([1, 1, 1, 0, 1, 1], bool)
+
+    def polygon(t, contact):
+        return support.polygon(SimpleNamespace(t=t, foot_contact=contact, foot_positions=feet), stance)
+
+    assert np.allclose(polygon(0.0, touching), support_polygon(feet[[0, 1, 2, 3, 4], :2]))
+    # The swing foot supports for CONTACT_DEBOUNCE after its touch; the stance feet on the ground
+    # support without a contact report; the hanging stance foot never does.
+    assert np.allclose(polygon(0.5 * CONTACT_DEBOUNCE, np.zeros(6, bool)), support_polygon(feet[[0, 1, 2, 3, 4], :2]))
+    assert np.allclose(polygon(2 * CONTACT_DEBOUNCE, np.zeros(6, bool)), support_polygon(feet[[0, 1, 2, 4], :2]))
