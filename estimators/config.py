@@ -32,6 +32,7 @@ class FusionConfig:
     accel_bias_initial_std: float      # m/s^2: turn-on offset plus misalignment, per axis
     accel_bias_estimation: str         # ACCEL_BIAS_MODES: when the offset is estimated; else a "consider" state
     accel_bias_random_walk: float      # m/s^3/sqrt(Hz)
+    accel_cross_axis_std: float        # rad: the z axis's sensitivity to x and y specific force (misalignment)
     body_accel_std: float              # m/s^2, std of the body acceleration (accelerometer gate, fallback noise)
     initial_tilt_std_deg: float
     initial_yaw_std_deg: float
@@ -54,7 +55,7 @@ class FusionConfig:
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
-                     "body_accel_std", "initial_tilt_std_deg", "initial_yaw_std_deg",
+                     "accel_cross_axis_std", "body_accel_std", "initial_tilt_std_deg", "initial_yaw_std_deg",
                      "initial_velocity_std", "gate_recovery_time",
                      "foot_position_std", "foot_slip_std", "bias_fault_window", "bias_fault_std"):
             positive(f"estimators.ekf.{name}", getattr(self, name))

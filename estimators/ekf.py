@@ -5,7 +5,9 @@ bias Jacobians J_* of preintegration.py; Sola 2017 section 7.2 and Forster et al
     dtheta_j = D dtheta_i + J_R db_g
     dv_j     = D dv_i - g dt D U dtheta_i + (D J_v_g + [v_j]x J_R) db_g + D J_v_a db_a
     dp_j     = D (dp_i - dv_i dt + g dt^2 / 2 U dtheta_i - J_p_g db_g - J_p_a db_a) + [p_j]x J_R db_g
-A foot's kinematics give H_p_i = I. After each correction the error is injected into the nominal
+The accelerometer's cross-axis terms c are constants (identity rows). A foot's kinematics give
+H_p_i = I; a still window's mean specific force g u + b_a + g (c . u_xy) e_z gives H = [g [u]x, I,
+g e_z u_xy^T] on (dtheta, db_a, dc). After each correction the error is injected into the nominal
 state and reset (Sola 2017, section 6).
 """
 
@@ -16,7 +18,8 @@ from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import ACCEL_BIAS, ERROR_DIM, THETA, FusionEstimator, NominalState, inject_in_place
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, NominalState,
+                               inject_in_place)
 from estimators.linalg import inverse3, skew
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
                                        current_attitude, quaternion_matrix, skew3)
@@ -65,7 +68,7 @@ def _fill_transition(F: np.ndarray, D: np.ndarray, J: np.ndarray, up: np.ndarray
     foot_bias = -(D @ J[J_P_G])
     foot_accel_bias = -(D @ J[J_P_A])
     for leg in range(feet.shape[0]):
-        r = 12 + 3 * leg
+        r = FOOT0 + 3 * leg
         F[r:r + 3, 0:3] = foot_theta
         F[r:r + 3, 3:6] = foot_bias + skew3(feet[leg, 0], feet[leg, 1], feet[leg, 2]) @ JR
         F[r:r + 3, 6:9] = -dt * D
@@ -85,7 +88,7 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
     accepted = np.zeros(n, dtype=np.bool_)
     count = 0
     for k in range(n):
-        b = 12 + 3 * legs[k]
+        b = FOOT0 + 3 * legs[k]
         S = P[b:b + 3, b:b + 3] + variance * np.eye(3)
         y = innovation[k]
         accepted[k] = y @ np.linalg.solve(S, y) <= gate
@@ -100,7 +103,7 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
     for k in range(n):
         if accepted[k]:
             for i in range(3):
-                index[m] = 12 + 3 * legs[k] + i
+                index[m] = FOOT0 + 3 * legs[k] + i
                 z[m] = innovation[k, i]
                 m += 1
     PHt = np.ascontiguousarray(P[:, index])
@@ -110,8 +113,8 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
     gain = PHt @ np.linalg.inv(S)
     P -= gain @ PHt.T
     if consider:
-        P[9:12, 9:12] += PHt[9:12] @ gain[9:12].T
-        gain[9:12] = 0.0
+        P[9:FOOT0, 9:FOOT0] += PHt[9:FOOT0] @ gain[9:FOOT0].T
+        gain[9:FOOT0] = 0.0
     dx[:] = gain @ z
     tilt_cov[:] = gain[0:3] @ PHt[0:3].T
     if abs(dx[0]) + abs(dx[1]) + abs(dx[2]) > RESET_THRESHOLD:
@@ -154,7 +157,7 @@ class EkfEstimator(FusionEstimator):
         velocity, feet = state.velocity.copy(), state.feet.copy()
         q = predict(self.pre.buffer, velocity, feet, self.P, self._F, self._noise_rates, self._extra_noise(),
                     self.gravity)
-        self.state = NominalState(q, state.bias, velocity, state.accel_bias, feet)
+        self.state = NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross)
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)
@@ -162,7 +165,10 @@ class EkfEstimator(FusionEstimator):
         H = np.zeros((3, ERROR_DIM))
         H[:, THETA] = skew((g * ux, g * uy, g * uz))
         H[:, ACCEL_BIAS] = I3
-        return self._correct(H, mean_force - (self.state.accel_bias + (g * ux, g * uy, g * uz)), variance, gate)
+        H[2, ACCEL_CROSS] = g * ux, g * uy
+        cx, cy = self.state.accel_cross
+        predicted = self.state.accel_bias + (g * ux, g * uy, g * (uz + cx * ux + cy * uy))
+        return self._correct(H, mean_force - predicted, variance, gate)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
         dx, tilt_cov = self._dx, self._tilt_cov

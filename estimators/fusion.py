@@ -1,11 +1,13 @@
 """IMU + leg-kinematics fusion: the models shared by `ekf` and `ukf`, and their common front end.
 
-Nominal state: attitude q (world_from_body), gyro bias b_g, accelerometer bias b_a, the IMU
-point's velocity v and the six foot positions p_i relative to the IMU point, all in the body frame
-(robocentric, so that yaw never enters). Error state (30): dx = [dtheta (local rotation vector),
-db_g, dv, db_a, dp_1 ... dp_6] (Sola 2017, "Quaternion kinematics for the error-state Kalman
-filter", sections 5 and 6; foot states as in Bloesch et al. 2012, "State Estimation for Legged
-Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the body frame).
+Nominal state: attitude q (world_from_body), gyro bias b_g, accelerometer bias b_a, the
+accelerometer z axis's cross-axis terms c (its reading per unit body x and y specific force), the
+IMU point's velocity v and the six foot positions p_i relative to the IMU point, all in the body
+frame (robocentric, so that yaw never enters). Error state (32): dx = [dtheta (local rotation
+vector), db_g, dv, db_a, dc, dp_1 ... dp_6] (Sola 2017, "Quaternion kinematics for the
+error-state Kalman filter", sections 5 and 6; foot states as in Bloesch et al. 2012, "State
+Estimation for Legged Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the body
+frame).
 
 The IMU drives the prediction (strapdown: the specific force is an input, not a measurement),
 summed between filter steps by `preintegration` (Forster et al. 2017). Over an interval dt from
@@ -22,16 +24,21 @@ kinematics are what separate gravity from walking accelerations (the acceleromet
 A constant accelerometer offset looks exactly like a tilt; the two separate only as the body turns
 about a horizontal axis: b_a is estimated during the start-up calibration poses (testbed/startup.py:
 the body tilts +-12 deg in roll and pitch on planted feet; still windows, estimators/stillness.py,
-measure gravity), then held as a "consider" state (Schmidt-Kalman): no update moves it, its
-covariance widens the tilt's. While no foot is tracked (encoder dropout), the mean specific force
-of each step corrects the tilt as a gravity-direction measurement, its noise the body acceleration.
+measure gravity g u + b_a + g (c . u_xy) e_z), then held as a "consider" state (Schmidt-Kalman):
+no update moves it, its covariance widens the tilt's. Through small tilts the z axis's cross-axis
+terms c read exactly as an offset plus a tilt (both change the z reading by g u_y, g u_x), so they
+are states with their prior (the accelerometer's misalignment), held with b_a: not learnable
+from the poses, but without them the filter takes them for an offset and reports that offset,
+and the tilt it sets, as better known than they are. While no foot is tracked (encoder dropout),
+the mean specific force of each step corrects the tilt as a gravity-direction measurement, its
+noise the body acceleration.
 """
 
 from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
@@ -48,9 +55,12 @@ from sensors.samples import EncoderSample, FootSample
 from testbed.kinematics import LegGeometry
 
 NUM_FEET = 6
-ERROR_DIM = 12 + 3 * NUM_FEET
+FOOT0 = 14                     # error-state index of the first foot
+ERROR_DIM = FOOT0 + 3 * NUM_FEET
 THETA, BIAS, VEL, ACCEL_BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
-FEET = slice(12, ERROR_DIM)
+ACCEL_CROSS = slice(12, 14)    # the accelerometer z axis's sensitivity to the x and y specific force
+ACCEL_ERRORS = slice(9, 14)    # offset and cross-axis terms: the consider block after the start-up
+FEET = slice(FOOT0, ERROR_DIM)
 
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
 MAX_STEP = 0.01                # s: without encoder samples, the filter steps on its own this often
@@ -59,7 +69,7 @@ ZERO = np.zeros(3)
 
 def foot(leg: int) -> slice:
     """The error-state slice of foot `leg`."""
-    return slice(12 + 3 * leg, 15 + 3 * leg)
+    return slice(FOOT0 + 3 * leg, FOOT0 + 3 + 3 * leg)
 
 
 @dataclass
@@ -69,6 +79,7 @@ class NominalState:
     velocity: np.ndarray      # (3,) m/s, IMU point, body frame
     accel_bias: np.ndarray    # (3,) m/s^2
     feet: np.ndarray          # (6, 3) m, from the IMU point, body frame
+    accel_cross: np.ndarray = field(default_factory=lambda: np.zeros(2))    # (2,) rad, z axis per x, y force
 
 
 def apply_preintegration(state: NominalState, pre: Preintegration, gravity: float) -> tuple[NominalState, np.ndarray]:
@@ -79,7 +90,7 @@ def apply_preintegration(state: NominalState, pre: Preintegration, gravity: floa
     velocity = (state.velocity - gravity * dt * up + pre.dv) @ turn
     feet = (state.feet - (state.velocity * dt - 0.5 * gravity * dt * dt * up + pre.dp)) @ turn
     q = rot.normalized(rot.multiply(state.q, tuple(pre.dq)))
-    return NominalState(q, state.bias, velocity, state.accel_bias, feet), turn
+    return NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross), turn
 
 
 @dataclass(frozen=True)
@@ -102,8 +113,10 @@ class FusionNoise:
     def process(self, dt: float) -> np.ndarray:
         """Diagonal of the discrete process noise over dt (white noises integrated over dt)."""
         velocity = (self.accel_density + VELOCITY_RANDOM_WALK**2) * dt
-        return np.repeat([self.gyro * dt, self.bias_walk * dt, velocity, self.accel_bias_walk * dt]
-                         + [self.foot_slip * dt] * NUM_FEET, 3)
+        rates = np.zeros(ERROR_DIM)
+        rates[:12] = np.repeat([self.gyro * dt, self.bias_walk * dt, velocity, self.accel_bias_walk * dt], 3)
+        rates[FEET] = self.foot_slip * dt       # the cross-axis terms are constants
+        return rates
 
 
 def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
@@ -116,6 +129,7 @@ def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
     covariance[BIAS, BIAS] = params.gyro_bias_initial_std**2 * np.eye(3)
     covariance[VEL, VEL] = params.initial_velocity_std**2 * np.eye(3)
     covariance[ACCEL_BIAS, ACCEL_BIAS] = params.accel_bias_initial_std**2 * np.eye(3)
+    covariance[ACCEL_CROSS, ACCEL_CROSS] = params.accel_cross_axis_std**2 * np.eye(2)
     covariance[FEET, FEET] = params.foot_position_std**2 * np.eye(3 * NUM_FEET)    # restarted at touchdown
     return covariance
 
@@ -133,6 +147,7 @@ def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
     state.bias = state.bias + dx[BIAS]
     state.velocity = state.velocity + dx[VEL]
     state.accel_bias = state.accel_bias + dx[ACCEL_BIAS]
+    state.accel_cross = state.accel_cross + dx[ACCEL_CROSS]
     state.feet = state.feet + dx[FEET].reshape(NUM_FEET, 3)
 
 
@@ -140,7 +155,7 @@ def inject(state: NominalState, dx: np.ndarray) -> NominalState:
     """x_true = x (+) dx (Sola 2017, section 6.2)."""
     return NominalState(rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2]), state.bias + dx[BIAS],
                         state.velocity + dx[VEL], state.accel_bias + dx[ACCEL_BIAS],
-                        state.feet + dx[FEET].reshape(NUM_FEET, 3))
+                        state.feet + dx[FEET].reshape(NUM_FEET, 3), state.accel_cross + dx[ACCEL_CROSS])
 
 
 def horizontal_basis(up: np.ndarray) -> np.ndarray:
@@ -319,10 +334,10 @@ class FusionEstimator(Estimator):
 
     def _hold_accel_bias(self) -> None:
         """The start-up poses are over (or there are none to learn from, "never"): the
-        accelerometer offset becomes a consider state, its
+        accelerometer offset and cross-axis terms become consider states, the offset's
         variance widened by the stance feet's creep acceleration, which aliases into the tilt
         exactly as an offset does."""
-        self.consider = ACCEL_BIAS
+        self.consider = ACCEL_ERRORS
         self.P[ACCEL_BIAS, ACCEL_BIAS] += self.params.foot_creep_accel_std**2 * np.eye(3)
 
     def _new_interval(self) -> None:

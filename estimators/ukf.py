@@ -1,7 +1,7 @@
 """`ukf`: the models of fusion.py through filterpy's UnscentedKalmanFilter, to compare sigma points
 with the EKF's linearisation on the same data.
 
-filterpy's state `x` is the 30-dimensional error state dx = [dtheta, db_g, dv, db_a, dp_1..6] about
+filterpy's state `x` is the 32-dimensional error state dx = [dtheta, db_g, dv, db_a, dc, dp_1..6] about
 the nominal state held here. Each sigma point is injected into the nominal state (q Exp(dtheta),
 ...), moved over the preintegrated interval with its own biases (the increments corrected to first
 order with the preintegration's bias Jacobians, Forster et al. 2017 eq. 44) or measured, and turned
@@ -10,7 +10,7 @@ is injected into the nominal state and x is reset to zero (Sola 2017, section 6)
 points stay centred on it. The spread of the sigma points must stay below 180 deg about the
 unobservable yaw axis: the yaw variance is capped at `max_yaw_std_deg`.
 
-filterpy calls the process model once per sigma point (61 of them); `BatchUnscentedKalmanFilter`
+filterpy calls the process model once per sigma point (65 of them); `BatchUnscentedKalmanFilter`
 only replaces that loop by the same model evaluated on all points at once (`propagate_errors`,
 checked against the per-point `UkfEstimator._fx` in the tests). Everything else (sigma points,
 unscented transform, gain, update) is filterpy's. The stance feet are one stacked measurement per
@@ -27,7 +27,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.config import FusionConfig, TerrainEstimatorConfig, UkfConfig
-from estimators.fusion import (ACCEL_BIAS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
                                NominalState, apply_preintegration, foot, inject, reset_jacobian)
 from estimators.linalg import inverse3
 from estimators.preintegration import J_P_A, J_P_G, J_R, J_V_A, J_V_G, Preintegration
@@ -41,7 +41,8 @@ def difference(state: NominalState, reference: NominalState) -> np.ndarray:
     """dx such that state = reference (+) dx."""
     dtheta = rot.log(rot.multiply(rot.conjugate(reference.q), state.q))
     return np.concatenate([dtheta, state.bias - reference.bias, state.velocity - reference.velocity,
-                           state.accel_bias - reference.accel_bias, (state.feet - reference.feet).ravel()])
+                           state.accel_bias - reference.accel_bias, state.accel_cross - reference.accel_cross,
+                           (state.feet - reference.feet).ravel()])
 
 
 def corrected(pre: Preintegration, gyro_bias_error: np.ndarray, accel_bias_error: np.ndarray) -> Preintegration:
@@ -78,6 +79,7 @@ def propagate_errors(sigmas: np.ndarray, before: NominalState, after: NominalSta
     out[:, BIAS] = before.bias + gyro_error - after.bias
     out[:, VEL] = moved_velocity - after.velocity
     out[:, ACCEL_BIAS] = before.accel_bias + accel_error - after.accel_bias
+    out[:, ACCEL_CROSS] = before.accel_cross + sigmas[:, ACCEL_CROSS] - after.accel_cross
     out[:, FEET] = (moved_feet - after.feet).reshape(count, -1)
     return out
 
@@ -127,9 +129,10 @@ class UkfEstimator(FusionEstimator):
         return difference(moved, after)
 
     def _hx_specific_force(self, dx: np.ndarray) -> np.ndarray:
-        """Gravity plus offset seen by the accelerometer at the sigma point."""
+        """Gravity, as the z axis's cross-axis terms read it, plus offset at the sigma point."""
         ux, uy, uz = rot.up_in_body(rot.multiply(self.state.q, rot.exp(dx[0], dx[1], dx[2])))
-        return self.state.accel_bias + dx[ACCEL_BIAS] + self.gravity * np.array([ux, uy, uz])
+        cx, cy = self.state.accel_cross + dx[ACCEL_CROSS]
+        return self.state.accel_bias + dx[ACCEL_BIAS] + self.gravity * np.array([ux, uy, uz + cx * ux + cy * uy])
 
     def _hx_feet(self, dx: np.ndarray, index: np.ndarray, nominal: np.ndarray) -> np.ndarray:
         return nominal + dx[index]
