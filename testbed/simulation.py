@@ -181,10 +181,12 @@ class Simulation:
 
     def _apply_compliant_contact(self) -> None:
         feet = self._state.feet
-        contacts = self.compliant.compute(feet.centers, feet.velocities, feet.spins)
-        offsets = tibia_points(feet.tibia_rotations, feet.tibia_origins, contacts.points)
-        for leg in np.flatnonzero(contacts.in_contact):
-            self.tibias[leg].addExtForce(contacts.forces[leg], offsets[leg], False, True)
+        contacts, offsets = self.compliant.compute(feet.centers, feet.velocities, feet.spins, feet.tibia_rotations,
+                                                   feet.tibia_origins)
+        forces = contacts.forces
+        for leg, touching in enumerate(contacts.in_contact.tolist()):
+            if touching:
+                self.tibias[leg].addExtForce(forces[leg], offsets[leg], False, True)
         self._contacts = contacts
 
     def _read_dart_contacts(self) -> FootContacts:
@@ -344,18 +346,6 @@ def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
     q[j] = (m[j, i] + m[i, j]) * t
     q[k] = (m[k, i] + m[i, k]) * t
     return q
-
-
-@njit(cache=True)
-def tibia_points(rotations: np.ndarray, origins: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(6, 3) world `points` in each tibia's link frame: R^T (p - o), leg by leg."""
-    local = np.empty_like(points)
-    for leg in range(len(points)):
-        for i in range(3):
-            local[leg, i] = (rotations[leg, 0, i] * (points[leg, 0] - origins[leg, 0])
-                             + rotations[leg, 1, i] * (points[leg, 1] - origins[leg, 1])
-                             + rotations[leg, 2, i] * (points[leg, 2] - origins[leg, 2]))
-    return local
 
 
 @njit(cache=True)
