@@ -28,10 +28,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from datasets import codec, schemas
+from datasets.mcap_batch import BatchWriter
 from datasets.signals import sigint_deferred
 from testbed.recording import Tick
 
@@ -57,7 +58,7 @@ class DatasetWriter:
         self.partial_path = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer = BatchWriter(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
         self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
         self.closed = False
@@ -79,9 +80,7 @@ class DatasetWriter:
     def add_many(self, messages: list[tuple[int, int, bytes, int]], flush: bool) -> None:
         """(channel id, log ns, data, sequence) messages; `flush` closes the chunk and flushes the file."""
         with sigint_deferred():
-            add = self._writer.add_message
-            for channel, log_ns, data, sequence in messages:
-                add(channel, log_ns, data, log_ns, sequence)
+            self._writer.add_messages(messages)
             if flush:
                 self._writer.flush()
 

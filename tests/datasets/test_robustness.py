@@ -122,8 +122,8 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
     recorder = McapRecorder(tmp_path / "run.mcap")
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    writer = recorder._dataset._writer
-    original_add = writer.add_message
+    chunk_builder = recorder._dataset._writer._Writer__chunk_builder
+    original_add = chunk_builder.add_record
     calls = []
 
     def add_then_interrupt(*args, **kwargs):
@@ -132,7 +132,7 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
             os.kill(os.getpid(), signal.SIGINT)    # lands in the middle of a batch of writes
         return original_add(*args, **kwargs)
 
-    writer.add_message = add_then_interrupt
+    chunk_builder.add_record = add_then_interrupt
     with pytest.raises(KeyboardInterrupt):
         for tick in ticks:
             recorder.record(tick)
