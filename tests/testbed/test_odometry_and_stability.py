@@ -6,7 +6,7 @@ import pytest
 from testbed import config
 from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.stability import stability_margin, support_polygon
+from testbed.stability import debounced_support, stability_margin, support_polygon
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -69,6 +69,22 @@ def test_support_polygon_and_margin():
     two = support_polygon(np.array([[0.0, 0.0], [1.0, 0.0]]))
     assert stability_margin(two, np.array([0.5, 0.5])) == pytest.approx(-0.5)
     assert stability_margin(np.empty((0, 2)), np.zeros(2)) == -np.inf
+
+
+def test_debounced_support_keeps_recent_touches_and_matches_the_separate_functions():
+    rng = np.random.default_rng(4)
+    last_touch = np.full(6, -np.inf)
+    for step in range(200):
+        t = 0.001 * step
+        feet, com = rng.normal(0.0, 0.2, (6, 3)), rng.normal(0.0, 0.05, 3)
+        contact = rng.random(6) < 0.4
+        before = last_touch.copy()
+        polygon, margin = debounced_support(last_touch, contact, t, feet, com[:2], 0.005)
+        supporting = contact | (t - before <= 0.005)
+        expected = support_polygon(feet[supporting, :2])
+        np.testing.assert_array_equal(polygon, expected)
+        assert margin == stability_margin(expected, com[:2])
+        np.testing.assert_array_equal(last_touch, np.where(contact, t, before))
 
 
 def test_odometry_rotates_leg_displacements_by_the_given_heading():
