@@ -52,17 +52,16 @@ class CompliantContact:
         self._fixed_candidates = (terrain.candidates(np.zeros((6, 3)))
                                   if type(terrain).candidates is Terrain.candidates else None)
 
-    def compute(self, centers: np.ndarray, center_velocities: np.ndarray, angular_velocities: np.ndarray,
-                link_rotations: np.ndarray, link_origins: np.ndarray) -> tuple[FootContacts, np.ndarray]:
-        """Forces for foot spheres at `centers` moving with `center_velocities`, links turning at
-        `angular_velocities` (all (6, 3), world), and the contact points in the frames of the
-        feet's links (world_from_link `link_rotations` (6, 3, 3) at `link_origins` (6, 3)), where
-        the forces are applied."""
+    def compute(self, centers: np.ndarray, links: np.ndarray) -> tuple[FootContacts, np.ndarray]:
+        """Forces for foot spheres at `centers` (6, 3) whose links move as `links` (6, 6, 3): per foot
+        the sphere centre's velocity, the link's angular velocity, the three rows of world_from_link
+        and the link's origin, all world (one array: it comes out of the state read-out kernel
+        whole). Also the contact points in the links' frames, where the forces are applied."""
         boxes = self.terrain.boxes
         candidates = self._fixed_candidates if self._fixed_candidates is not None else self.terrain.candidates(centers)
         forces, normal_forces, normals, points, touching, local_points = _hard_finger(
-            centers, center_velocities, angular_velocities, self.anchors, self._parameters, boxes.centers,
-            boxes.half_extents, boxes.rotations, candidates, link_rotations, link_origins)
+            centers, links, self.anchors, self._parameters, boxes.centers, boxes.half_extents, boxes.rotations,
+            candidates)
         return FootContacts(forces, normal_forces, normals, points, touching), local_points
 
     def reset(self) -> None:
@@ -72,10 +71,10 @@ class CompliantContact:
 # Compiled with numba: six feet of a dozen vector operations each, which numpy spent ~100 us per
 # physics step on in call overhead. The loop is the model of the module docstring, foot by foot.
 @njit(cache=True)
-def _hard_finger(centers, center_velocities, spins, anchors, parameters, box_centers, box_halves, box_rotations,
-                 candidates, link_rotations, link_origins):
+def _hard_finger(centers, links, anchors, parameters, box_centers, box_halves, box_rotations, candidates):
     """Forces, normal forces, contact normals, contact points and flags of the feet, and the contact
     points in the links' frames; updates the sticking `anchors` (NaN rows: no anchor) in place."""
+    center_velocities, spins, link_rotations, link_origins = links[:, 0], links[:, 1], links[:, 2:5], links[:, 5]
     radius, stiffness, exponent, damping, tangential_stiffness, tangential_damping, friction = parameters
     depth, normals = sphere_contact_arrays(centers, radius, box_centers, box_halves, box_rotations, candidates)
     n = len(centers)
