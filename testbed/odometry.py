@@ -23,6 +23,7 @@ velocity does not change, so the odometry carries it on at the velocity the legs
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -151,7 +152,7 @@ class GyroHeading:
 
     def update(self, t: float, rate: np.ndarray) -> None:
         """A body-frame angular rate sample (rad/s) at time t."""
-        if not np.isfinite(rate).all():
+        if not all(map(math.isfinite, rate.tolist())):
             return
         if t < self.calibration_time:
             self._sum += rate
@@ -159,7 +160,9 @@ class GyroHeading:
             self.bias = self._sum / self._count
         elif self._last_t is not None:
             dt = t - self._last_t
-            wx, wy, wz = (rate - self.bias) * dt
+            # Python floats: the rotation helpers' scalar arithmetic on them is several times
+            # faster than on numpy scalars, with the same IEEE results.
+            wx, wy, wz = ((rate - self.bias) * dt).tolist()
             self._attitude = rot.rotate_by_vector(self._attitude, wx, wy, wz)
             self.yaw = rot.euler_from_quaternion(self._attitude)[2]
         self._last_t = t
