@@ -43,8 +43,9 @@ class BatchWriter(Writer):
             return
         self._count(messages)
         builder, limit = self._Writer__chunk_builder, self._chunk_size_limit
-        for message in messages:
-            builder.add_record(*message)
+        start = 0
+        while start < len(messages):
+            start = builder.add_records(messages, start, limit)
             if builder.count > limit:
                 self._Writer__finalize_chunk()
 
@@ -65,25 +66,46 @@ class BatchChunkBuilder(ChunkBuilder):
     """mcap's ChunkBuilder writing each Message record, and each channel's index, in one piece."""
 
     def add_message(self, message: Message) -> None:
-        self.add_record(message.channel_id, message.log_time, message.data, message.sequence, message.publish_time)
+        self._add(message.channel_id, message.log_time, message.data, message.sequence, message.publish_time)
 
-    def add_record(self, channel: int, log_time: int, data: bytes, sequence: int,
-                   publish_time: int | None = None) -> None:
+    def add_records(self, messages: list[tuple[int, int, bytes, int]], start: int, size_limit: int) -> int:
+        """Add messages[start:], published at their log times, until the chunk grows past
+        `size_limit` bytes; returns the index after the last message added."""
+        buffer, indices = self.record_writer._buffer, self.message_indices
+        offset = buffer.tell()
+        if self.num_messages == 0:
+            self.message_start_time = messages[start][1]
+        first, last = self.message_start_time, self.message_end_time
+        pack, opcode, end = MESSAGE_HEADER.pack, Opcode.MESSAGE, start
+        for channel, log_time, data, sequence in messages[start:]:
+            first, last = min(first, log_time), max(last, log_time)
+            index = indices.get(channel)
+            if index is None:
+                index = indices[channel] = PackedMessageIndex(channel_id=channel, records=[])
+            index.records.append((log_time, offset))
+            buffer.write(pack(opcode, MESSAGE_FIELDS_SIZE + len(data), channel, sequence, log_time, log_time))
+            buffer.write(data)
+            offset += MESSAGE_HEADER.size + len(data)
+            end += 1
+            if offset > size_limit:
+                break
+        self.num_messages += end - start
+        self.message_start_time, self.message_end_time = first, last
+        return end
+
+    def _add(self, channel: int, log_time: int, data: bytes, sequence: int, publish_time: int) -> None:
         if self.num_messages == 0:
             self.message_start_time = log_time
-        elif log_time < self.message_start_time:
-            self.message_start_time = log_time
-        if log_time > self.message_end_time:
-            self.message_end_time = log_time
+        self.message_start_time = min(self.message_start_time, log_time)
+        self.message_end_time = max(self.message_end_time, log_time)
         buffer = self.record_writer._buffer
-        offset = buffer.tell()
         index = self.message_indices.get(channel)
         if index is None:
             index = self.message_indices[channel] = PackedMessageIndex(channel_id=channel, records=[])
-        index.records.append((log_time, offset))
+        index.records.append((log_time, buffer.tell()))
         self.num_messages += 1
         buffer.write(MESSAGE_HEADER.pack(Opcode.MESSAGE, MESSAGE_FIELDS_SIZE + len(data), channel, sequence, log_time,
-                                         log_time if publish_time is None else publish_time))
+                                         publish_time))
         buffer.write(data)
 
 
