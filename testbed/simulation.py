@@ -18,7 +18,7 @@ from testbed.contact import CompliantContact, FootContacts
 from testbed.errors import SimulationDiverged
 from testbed.kinematics import LegGeometry, world_feet_arrays, inverse_kinematics_all, nominal_stance
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset, joint_names
-from testbed.terrain import Terrain
+from testbed.terrain import Terrain, distances_to_boxes
 from testbed.truth import Truth
 
 INITIAL_CLEARANCE = 0.001   # m, feet start this far above the ground and settle onto it
@@ -266,8 +266,10 @@ class Simulation:
             return bool(getattr(self, "_body_touches", False))
         transform = self._state.transform
         world_corners = self._body_corners @ transform[:3, :3].T + transform[:3, 3]
-        distance, _ = self.terrain.closest(world_corners)
-        return bool(np.any(distance < 0.0))
+        # Inside any candidate box, not only the nearest surface's (Terrain.closest): the same answer
+        # without picking the nearest, half the cost.
+        distance, _ = distances_to_boxes(world_corners, self.terrain.boxes, self.terrain.candidates(world_corners))
+        return bool((distance < 0.0).any())
 
     def body_tilt(self) -> float:
         """Angle between the body's z axis and the vertical, rad."""
