@@ -2,8 +2,9 @@
 
 - The file is written as `<path>.partial` and renamed to `<path>` when it is closed, so a file
   with the final name is always complete.
-- `record` only serialises the tick into a pending list; every `flush_period` of simulated time
-  the pending messages go to the writer, which closes a compressed chunk and flushes it to disk.
+- `record` only keeps the tick (its arrays are new at every step, never modified afterwards);
+  every `flush_period` of simulated time the pending ticks are serialised, all in one loop, and go
+  to the writer, which closes a compressed chunk and flushes it to disk.
   A process killed outright therefore leaves a `.partial` file whose chunks up to the last flush
   are readable (`datasets.reader` recovers them).
 - Ctrl-C cannot land inside a write (`datasets.signals`); `finish`, which the run loop calls
@@ -28,10 +29,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from datasets import codec, schemas
+from datasets.mcap_batch import BatchWriter
 from datasets.signals import sigint_deferred
 from testbed.recording import Tick
 
@@ -57,7 +59,7 @@ class DatasetWriter:
         self.partial_path = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer = BatchWriter(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
         self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
         self.closed = False
@@ -79,9 +81,7 @@ class DatasetWriter:
     def add_many(self, messages: list[tuple[int, int, bytes, int]], flush: bool) -> None:
         """(channel id, log ns, data, sequence) messages; `flush` closes the chunk and flushes the file."""
         with sigint_deferred():
-            add = self._writer.add_message
-            for channel, log_ns, data, sequence in messages:
-                add(channel, log_ns, data, log_ns, sequence)
+            self._writer.add_messages(messages)
             if flush:
                 self._writer.flush()
 
@@ -125,8 +125,9 @@ class McapRecorder:
         self._dataset: DatasetWriter | None = None
         self._encoder = codec.Encoder()
         self._channels: dict[str, int] = {}
-        self._pending: list[tuple[int, int, bytes, int]] = []
+        self._pending_ticks: list[Tick] = []     # recorded, not yet encoded and written
         self._ticks = 0
+        self._encoded_ticks = 0
         self._samples = 0
         self._every = 1
         self._next_flush_ns = 0
@@ -152,23 +153,10 @@ class McapRecorder:
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        truth = tick.truth
-        t_ns = codec.to_ns(truth.t)
-        pending, channels, encoder = self._pending, self._channels, self._encoder
-        for sample in tick.samples:
-            topic, data = encoder.sample(sample)
-            pending.append((channels[topic], codec.to_ns(sample.t), data, self._samples))
-            self._samples += 1
-        estimate_channel = channels[schemas.ESTIMATE.name]
-        for estimate in tick.estimates:
-            pending.append((estimate_channel, codec.to_ns(estimate.t), encoder.estimate(estimate), 0))
-        pending.append((channels[schemas.TRUTH_POSE.name], t_ns,
-                        encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        pending.append((channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
-        if self._ticks % self._every == 0:
-            self._record_heavy_truth(tick, t_ns)
+        self._pending_ticks.append(tick)
         self._ticks += 1
-        self._last_t = truth.t
+        self._last_t = tick.truth.t
+        t_ns = codec.to_ns(tick.truth.t)
         if t_ns >= self._next_flush_ns:
             self._write_pending(flush=True)
             self._next_flush_ns = t_ns + codec.to_ns(self.flush_period)
@@ -188,19 +176,42 @@ class McapRecorder:
 
     # --- internals ----------------------------------------------------------------------------
 
-    def _record_heavy_truth(self, tick: Tick, t_ns: int) -> None:
-        truth, channels, pending, encoder = tick.truth, self._channels, self._pending, self._encoder
-        pending.append((channels[schemas.TF.name], t_ns,
-                        encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        pending.append((channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0))
-        pending.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0))
-        pending.append((channels[schemas.TRUTH_SUPPORT.name], t_ns,
-                        encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin), 0))
-        pending.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t), encoder.command(tick.command), 0))
-
     def _write_pending(self, flush: bool) -> None:
-        self._dataset.add_many(self._pending, flush)
-        self._pending.clear()
+        """Encode the ticks recorded since the last write (in one loop, whose code stays in the
+        processor's caches, rather than between the run loop's other stages) and write them."""
+        messages: list[tuple[int, int, bytes, int]] = []
+        for tick in self._pending_ticks:
+            self._encode(tick, messages)
+        self._pending_ticks.clear()
+        self._dataset.add_many(messages, flush)
+
+    def _encode(self, tick: Tick, messages: list[tuple[int, int, bytes, int]]) -> None:
+        truth, channels, encoder = tick.truth, self._channels, self._encoder
+        t_ns = codec.to_ns(truth.t)
+        for sample in tick.samples:
+            topic, data = encoder.sample(sample)
+            messages.append((channels[topic], codec.to_ns(sample.t), data, self._samples))
+            self._samples += 1
+        estimate_channel = channels[schemas.ESTIMATE.name]
+        for estimate in tick.estimates:
+            messages.append((estimate_channel, codec.to_ns(estimate.t), encoder.estimate(estimate), 0))
+        messages.append((channels[schemas.TRUTH_POSE.name], t_ns,
+                         encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0))
+        messages.append((channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
+        if self._encoded_ticks % self._every == 0:
+            self._encode_heavy_truth(tick, t_ns, messages)
+        self._encoded_ticks += 1
+
+    def _encode_heavy_truth(self, tick: Tick, t_ns: int, messages: list[tuple[int, int, bytes, int]]) -> None:
+        truth, channels, encoder = tick.truth, self._channels, self._encoder
+        messages.append((channels[schemas.TF.name], t_ns,
+                         encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
+        messages.append((channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0))
+        messages.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0))
+        messages.append((channels[schemas.TRUTH_SUPPORT.name], t_ns,
+                         encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin),
+                         0))
+        messages.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t), encoder.command(tick.command), 0))
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

@@ -5,12 +5,13 @@ included) and a 3-axis gyro, sampled together. Default parameters: Bosch BMI088 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.linalg import block_diag
 
 from sensors.config import ImuConfig
 from sensors.faults import Fault, FaultInjector
-from sensors.inertial_errors import InertialChannels, TriadErrors
-from sensors.motion import BodyMotion, MotionCache
+from sensors.inertial_errors import InertialChannels, TriadErrors, corrupt_values, digitize_rows
+from sensors.motion import BodyMotion, MotionCache, body_motion_arrays
 from sensors.samples import ImuSample
 from sensors.sampling import SampleClock, measure, sensor_seed
 from testbed.truth import Truth
@@ -36,9 +37,15 @@ class Imu:
         return values
 
     def samples_at(self, truth: Truth, t: float) -> list[ImuSample]:
-        out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))
-        if dropped is not None and dropped.all():
-            return []
+        if self._faults:
+            out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))
+            if dropped is not None and dropped.all():
+                return []
+        else:
+            channels = self.channels
+            out = _imu_reading(truth.body_rotation, truth.body_linear_acceleration, truth.body_angular_velocity,
+                               truth.body_angular_acceleration, self._motion.gravity, self._position, channels.gain,
+                               channels.next_errors(), channels.lsb, channels.lowest, channels.highest)
         return [ImuSample(t, out[:3], out[3:])]
 
     def record(self, truth: Truth, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -47,3 +54,16 @@ class Imu:
         still records such as the Allan deviation. Use it on a fresh Imu."""
         out = self.channels.record(self.body_values(BodyMotion(truth, self._motion.gravity)), n)
         return np.arange(n) / self.config.rate, out[:, :3], out[:, 3:]
+
+
+# Compiled: the fault-free IMU sample at 1 kHz in one call, through the same compiled steps as the
+# faulted path (true values, errors, digitizing), which numpy spent a dozen small calls on.
+@njit(cache=True)
+def _imu_reading(rotation, acceleration, angular_velocity, angular_acceleration, gravity, position, gain, errors,
+                 lsb, lowest, highest):
+    force, omega, lever = body_motion_arrays(rotation, acceleration, angular_velocity, angular_acceleration, gravity)
+    values = np.empty(6)
+    # np.dot is BLAS's dgemv, as numpy's `points @ lever_arm.T` in BodyMotion: the same bits.
+    values[:3] = force + np.dot(lever, position)
+    values[3:] = omega
+    return digitize_rows(corrupt_values(gain, values, errors).reshape(1, -1), lsb, lowest, highest)[0]

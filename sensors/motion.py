@@ -21,7 +21,7 @@ class BodyMotion:
     __slots__ = ("specific_force", "angular_velocity", "lever_arm")
 
     def __init__(self, truth: Truth, gravity: float) -> None:
-        self.specific_force, self.angular_velocity, self.lever_arm = _body_motion(
+        self.specific_force, self.angular_velocity, self.lever_arm = body_motion_arrays(
             truth.body_rotation, truth.body_linear_acceleration, truth.body_angular_velocity,
             truth.body_angular_acceleration, gravity)
 
@@ -33,7 +33,7 @@ class BodyMotion:
 # Compiled: the IMU asks for this at 1 kHz, and numpy spent ~5 us on three 3-vector rotations and
 # the matrix above; compiled it is ~1 us.
 @njit(cache=True)
-def _body_motion(rotation, acceleration, angular_velocity, angular_acceleration, gravity):
+def body_motion_arrays(rotation, acceleration, angular_velocity, angular_acceleration, gravity):
     """Body-frame specific force at the origin R^T (a - g_vec), angular velocity omega_b = R^T omega
     and the lever-arm matrix L = [alpha_b]x + omega_b omega_b^T - |omega_b|^2 I (alpha_b = R^T alpha),
     with L r = alpha_b x r + omega_b x (omega_b x r)."""

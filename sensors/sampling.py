@@ -24,13 +24,15 @@ class SampleClock:
     def __init__(self, rate: float) -> None:
         self.rate = rate
         self._next = 0
+        self.next_time = 0.0     # the next sample time, not handed out yet
 
     def due(self, t: float) -> list[float]:
         """The sample times up to `t` not handed out before, in order."""
         times = []
-        while self._next / self.rate <= t + TIME_EPS:
-            times.append(self._next / self.rate)
+        while self.next_time <= t + TIME_EPS:
+            times.append(self.next_time)
             self._next += 1
+            self.next_time = self._next / self.rate
         return times
 
 

@@ -48,14 +48,21 @@ class CompliantContact:
         self.anchors = np.full((6, 3), np.nan)
         self._parameters = np.array([foot_radius, config.stiffness, config.exponent, config.damping,
                                      config.tangential_stiffness, config.tangential_damping, config.friction])
+        # The base Terrain's candidates are every box, whatever the points: ask once, not every step.
+        self._fixed_candidates = (terrain.candidates(np.zeros((6, 3)))
+                                  if type(terrain).candidates is Terrain.candidates else None)
 
-    def compute(self, centers: np.ndarray, center_velocities: np.ndarray, angular_velocities: np.ndarray) -> FootContacts:
-        """Forces for foot spheres at `centers` moving with `center_velocities`, links turning at
-        `angular_velocities` (all (6, 3), world)."""
+    def compute(self, centers: np.ndarray, links: np.ndarray) -> tuple[FootContacts, np.ndarray]:
+        """Forces for foot spheres at `centers` (6, 3) whose links move as `links` (6, 6, 3): per foot
+        the sphere centre's velocity, the link's angular velocity, the three rows of world_from_link
+        and the link's origin, all world (one array: it comes out of the state read-out kernel
+        whole). Also the contact points in the links' frames, where the forces are applied."""
         boxes = self.terrain.boxes
-        return FootContacts(*_hard_finger(centers, center_velocities, angular_velocities, self.anchors, self._parameters,
-                                          boxes.centers, boxes.half_extents, boxes.rotations,
-                                          self.terrain.candidates(centers)))
+        candidates = self._fixed_candidates if self._fixed_candidates is not None else self.terrain.candidates(centers)
+        forces, normal_forces, normals, points, touching, local_points = _hard_finger(
+            centers, links, self.anchors, self._parameters, boxes.centers, boxes.half_extents, boxes.rotations,
+            candidates)
+        return FootContacts(forces, normal_forces, normals, points, touching), local_points
 
     def reset(self) -> None:
         self.anchors[:] = np.nan
@@ -64,10 +71,10 @@ class CompliantContact:
 # Compiled with numba: six feet of a dozen vector operations each, which numpy spent ~100 us per
 # physics step on in call overhead. The loop is the model of the module docstring, foot by foot.
 @njit(cache=True)
-def _hard_finger(centers, center_velocities, spins, anchors, parameters, box_centers, box_halves, box_rotations,
-                 candidates):
-    """Forces, normal forces, contact normals, contact points and flags of the feet; updates the
-    sticking `anchors` (NaN rows: no anchor) in place."""
+def _hard_finger(centers, links, anchors, parameters, box_centers, box_halves, box_rotations, candidates):
+    """Forces, normal forces, contact normals, contact points and flags of the feet, and the contact
+    points in the links' frames; updates the sticking `anchors` (NaN rows: no anchor) in place."""
+    center_velocities, spins, link_rotations, link_origins = links[:, 0], links[:, 1], links[:, 2:5], links[:, 5]
     radius, stiffness, exponent, damping, tangential_stiffness, tangential_damping, friction = parameters
     depth, normals = sphere_contact_arrays(centers, radius, box_centers, box_halves, box_rotations, candidates)
     n = len(centers)
@@ -105,4 +112,16 @@ def _hard_finger(centers, center_velocities, spins, anchors, parameters, box_cen
             # A sliding foot drags its anchor along so that the spring alone carries the capped force.
             for i in range(3):
                 anchors[leg, i] = points[leg, i] + trial[i] * scale / tangential_stiffness
-    return forces, normal_force, normals_out, points, touching
+    return forces, normal_force, normals_out, points, touching, points_in_links(link_rotations, link_origins, points)
+
+
+@njit(cache=True)
+def points_in_links(rotations: np.ndarray, origins: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(6, 3) world `points` in each link's frame: R^T (p - o), leg by leg."""
+    local = np.empty_like(points)
+    for leg in range(len(points)):
+        for i in range(3):
+            local[leg, i] = (rotations[leg, 0, i] * (points[leg, 0] - origins[leg, 0])
+                             + rotations[leg, 1, i] * (points[leg, 1] - origins[leg, 1])
+                             + rotations[leg, 2, i] * (points[leg, 2] - origins[leg, 2]))
+    return local

@@ -91,14 +91,15 @@ def leg_transform(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
 
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
     """(6, 3) foot positions p_i^b for the 18 joint angles q: eq. 2 for all legs at once."""
-    return _foot_positions(np.asarray(q, dtype=float).reshape(18), geom.base_cos, geom.base_sin, geom.base_angle,
-                           geom.base_distance, geom.femur, geom.tibia)
+    return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.base_cos, geom.base_sin,
+                                 geom.base_angle, geom.base_distance, geom.femur, geom.tibia)
 
 
 # Compiled: odometry, the estimators and the posture controller call this every tick or encoder
 # sample, and numpy's column_stack of six-element arrays cost ~10 us a call against ~1 us here.
 @njit(cache=True)
-def _foot_positions(q, base_cos, base_sin, base_angle, base_distance, a2, a3):
+def foot_positions_arrays(q, base_cos, base_sin, base_angle, base_distance, a2, a3):
+    """foot_positions on the geometry's arrays (compiled; callable from other kernels)."""
     feet = np.empty((6, 3))
     for leg in range(6):
         th1, th2, th3 = q[3 * leg], q[3 * leg + 1], q[3 * leg + 2]

@@ -38,7 +38,6 @@ class RunMetrics:
         self.min_margin = np.inf
         self.start_xy: np.ndarray | None = None
         self.start_heading = 0.0
-        self.last_xy = np.zeros(2)
         self.truth_t: list[float] = []
         self.truth_quaternion: list[np.ndarray] = []
         self.feet: list[np.ndarray] = []
@@ -46,18 +45,23 @@ class RunMetrics:
         self.body_position: list[np.ndarray] = []
         self.estimates: list = []
 
+    @property
+    def last_xy(self) -> np.ndarray:
+        """Body x, y at the latest tick (zeros before the first)."""
+        return self.body_position[-1][:2].copy() if self.body_position else np.zeros(2)
+
     def add(self, tick: Tick) -> None:
         truth = tick.truth
+        t = truth.t
         if self.start_xy is None:
             self.start_xy = truth.body_position[:2].copy()
             self.start_heading = float(np.arctan2(truth.body_rotation[1, 0], truth.body_rotation[0, 0]))
-        self.last_xy = truth.body_position[:2].copy()
-        if truth.t >= self.window_start:
+        if t >= self.window_start:
             self._normal_sum += float(tick.contacts.normal_forces.sum())
             self._normal_count += 1
-        if truth.t >= SETTLE_TIME:
+        if t >= SETTLE_TIME:
             self.min_margin = min(self.min_margin, tick.stability_margin)
-        self.truth_t.append(truth.t)
+        self.truth_t.append(t)
         self.truth_quaternion.append(tick.truth_quaternion)
         self.feet.append(truth.foot_positions)
         self.contact.append(truth.foot_contact)
@@ -72,7 +76,8 @@ class RunMetrics:
 
     def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
         ratio = self._normal_sum / self._normal_count / self.weight if self._normal_count else None
-        displacement = self.last_xy - (self.start_xy if self.start_xy is not None else self.last_xy)
+        last_xy = self.last_xy
+        displacement = last_xy - (self.start_xy if self.start_xy is not None else last_xy)
         heading = np.array([np.cos(self.start_heading), np.sin(self.start_heading)])
         target = self.config.gait.target
         metrics = {
@@ -81,7 +86,7 @@ class RunMetrics:
             "distance_m": float(np.linalg.norm(displacement)),
             "mean_speed_mps": self._mean_speed(float(np.linalg.norm(displacement)), sim_time),
             "lateral_drift_m": float(abs(heading[0] * displacement[1] - heading[1] * displacement[0])),
-            "target_error_m": float(np.linalg.norm(self.last_xy - target)) if target else None,
+            "target_error_m": float(np.linalg.norm(last_xy - target)) if target else None,
             "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
             "ik_limited_ticks": ik_limited_ticks,
             **self.posture_metrics(),

@@ -144,7 +144,7 @@ class Pilot:
         # Hold the commanded heading against the feet's twisting on the ground.
         self.heading_reference += gait.turn_rate * ramp * self.dt
         error = np.arctan2(np.sin(self.heading_reference - self.heading.yaw), np.cos(self.heading_reference - self.heading.yaw))
-        correction = float(np.clip(gait.heading_gain * error, -gait.cruise_turn_rate, gait.cruise_turn_rate))
+        correction = float(min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate))
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
 
     def _solve_ik(self, feet: np.ndarray) -> None:

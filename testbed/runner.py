@@ -20,7 +20,7 @@ from testbed.metrics import RunMetrics
 from testbed.pilot import Pilot
 from testbed.recording import NullRecorder, Recorder, Tick
 from testbed.simulation import FALL_TILT, Simulation
-from testbed.stability import stability_margin, support_polygon
+from testbed.stability import debounced_support
 from testbed.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
@@ -52,23 +52,21 @@ class SupportTracker:
         self.foot_radius = foot_radius
         self.last_touch = np.full(6, -np.inf)
 
-    def polygon(self, truth, stance: np.ndarray) -> np.ndarray:
-        self.last_touch[truth.foot_contact] = truth.t
-        supporting = truth.t - self.last_touch <= CONTACT_DEBOUNCE
-        resting = stance & ~supporting
-        if resting.any():
-            gap = self.terrain.closest(truth.foot_positions[resting])[0] - self.foot_radius
-            supporting[resting] = gap <= GROUND_TOLERANCE
-        return support_polygon(truth.foot_positions[supporting, :2])
+    def polygon_and_margin(self, truth, stance: np.ndarray) -> tuple[np.ndarray, float]:
+        """The support polygon and the centre of mass's stability margin in it."""
+        late = stance & ~truth.foot_contact & (truth.t - self.last_touch > CONTACT_DEBOUNCE)
+        resting = np.zeros(6, dtype=bool)
+        if late.any():
+            gap = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius
+            resting[late] = gap <= GROUND_TOLERANCE
+        return debounced_support(self.last_touch, truth.foot_contact, truth.t, truth.foot_positions,
+                                 truth.com_position, CONTACT_DEBOUNCE, resting)
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
-    contacts = sim.contacts()
-    polygon = support.polygon(truth, ~command.swinging)
-    return Tick(truth=truth, truth_quaternion=sim.body_quaternion(),
-                contacts=contacts, support_polygon=polygon,
-                stability_margin=stability_margin(polygon, truth.com_position[:2]),
-                samples=samples, estimates=estimates, command=command)
+    polygon, margin = support.polygon_and_margin(truth, ~command.swinging)
+    return Tick(truth=truth, truth_quaternion=sim.body_quaternion(), contacts=sim.contacts(), support_polygon=polygon,
+                stability_margin=margin, samples=samples, estimates=estimates, command=command)
 
 
 def true_roll_pitch(truth) -> tuple[float, float]:

@@ -16,12 +16,13 @@ from numba import njit
 from testbed.config import Config
 from testbed.contact import CompliantContact, FootContacts
 from testbed.errors import SimulationDiverged
-from testbed.kinematics import LegGeometry, WorldFeet, world_feet_arrays, inverse_kinematics_all, nominal_stance
+from testbed.kinematics import LegGeometry, world_feet_arrays, inverse_kinematics_all, nominal_stance
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset, joint_names
-from testbed.terrain import Terrain
+from testbed.terrain import Terrain, distances_to_boxes
 from testbed.truth import Truth
 
 INITIAL_CLEARANCE = 0.001   # m, feet start this far above the ground and settle onto it
+BODY = -1                   # what Simulation._collision_object_leg answers for the body's shapes
 FALL_TILT = np.radians(45.0)
 
 
@@ -77,6 +78,11 @@ class Simulation:
         self.contact_model = config.run.contact
         self._setup_contact()
         self.world.addSkeleton(self.robot)
+        if self.contact_model == "compliant":
+            # Nothing in DART's world collides (the compliant model applies the contact forces):
+            # without the robot's shapes in its collision group, DART skips updating and testing
+            # them every step (~3 us of its ~50 us step; the motion is the same to the bit).
+            self.world.getConstraintSolver().getCollisionGroup().removeShapeFramesOf(self.robot)
         self.standing_targets = self._place_robot()
         self._commands = np.zeros(self.robot.getNumDofs())
         self._contacts = FootContacts.none()
@@ -115,6 +121,7 @@ class Simulation:
                     node.getDynamicsAspect().setFrictionCoeff(pyramid)
                     node.getDynamicsAspect().setRestitutionCoeff(0.0)
         self.foot_shape_leg = {tibia.getShapeNodes()[-1].getName(): leg for leg, tibia in enumerate(self.tibias)}
+        self._collision_legs: dict[object, int | None] = {}
 
     def _place_robot(self) -> np.ndarray:
         """Body level at the nominal height over the ground under it, each foot just above its ground."""
@@ -169,45 +176,63 @@ class Simulation:
         transform = self.body.getWorldTransform().matrix()
         positions, velocities = self.robot.getPositions(), self.robot.getVelocities()
         previous, geometry = self._state, self.geometry
-        finite, quaternion, linear, angular, linear_acceleration, angular_acceleration, *feet = _body_state(
+        finite, body, foot_centers, foot_links = _body_state(
             transform, self.body.getSpatialVelocity(), positions, velocities, previous.linear_velocity,
             previous.angular_velocity, self.dt, geometry.base_angle, geometry.base_distance, geometry.femur,
             geometry.tibia)
         if not finite:
             raise SimulationDiverged(f"simulation state became non-finite at t = {self.time:.3f} s")
-        self._state = BodyState(self.world.getTime(), transform, quaternion, linear, angular, linear_acceleration,
-                                angular_acceleration, positions[6:], velocities[6:], np.asarray(self.robot.getCOM()),
-                                WorldFeet(*feet))
+        self._state = BodyState(self.world.getTime(), transform, body[0:4], body[4:7], body[7:10], body[10:13],
+                                body[13:16], positions[6:], velocities[6:], np.asarray(self.robot.getCOM()),
+                                foot_centers, foot_links)
 
     def _apply_compliant_contact(self) -> None:
-        feet = self._state.feet
-        contacts = self.compliant.compute(feet.centers, feet.velocities, feet.spins)
-        offsets = tibia_points(feet.tibia_rotations, feet.tibia_origins, contacts.points)
-        for leg in np.flatnonzero(contacts.in_contact):
-            self.tibias[leg].addExtForce(contacts.forces[leg], offsets[leg], False, True)
+        contacts, offsets = self.compliant.compute(self._state.foot_centers, self._state.foot_links)
+        forces = contacts.forces
+        for leg, touching in enumerate(contacts.in_contact.tolist()):
+            if touching:
+                self.tibias[leg].addExtForce(forces[leg], offsets[leg], False, True)
         self._contacts = contacts
 
     def _read_dart_contacts(self) -> FootContacts:
-        forces = np.zeros((6, 3))
-        normals = np.zeros((6, 3))
-        points = np.zeros((6, 3))
-        counts = np.zeros(6)
+        # Sums in Python floats, contact by contact in DART's order: the same additions numpy made on
+        # (3,) rows, without a dozen numpy calls per contact.
+        forces, normals, points = ([[0.0, 0.0, 0.0] for _ in range(6)] for _ in range(3))
+        counts = [0.0] * 6
         self._body_touches = False
         for contact in self.world.getLastCollisionResult().getContacts():
-            names = (contact.collisionObject1.getShapeFrame().getName(),
-                     contact.collisionObject2.getShapeFrame().getName())
-            for side, name in enumerate(names):
-                leg = self.foot_shape_leg.get(name)
+            for sign, collision_object in ((1.0, contact.collisionObject1), (-1.0, contact.collisionObject2)):
+                leg = self._collision_object_leg(collision_object)
                 if leg is None:
-                    if name.startswith("body"):
-                        self._body_touches = True
+                    continue
+                if leg == BODY:
+                    self._body_touches = True
                     continue
                 # contact.force acts on collisionObject1 and its normal points from 2 towards 1.
-                sign = 1.0 if side == 0 else -1.0
-                forces[leg] += sign * np.asarray(contact.force)
-                normals[leg] += sign * np.asarray(contact.normal)
-                points[leg] += np.asarray(contact.point)
+                force, normal, point = forces[leg], normals[leg], points[leg]
+                for i, (f, n, p) in enumerate(zip(contact.force.tolist(), contact.normal.tolist(),
+                                                  contact.point.tolist())):
+                    force[i] += sign * f
+                    normal[i] += sign * n
+                    point[i] += p
                 counts[leg] += 1
+        return self._foot_contacts(np.array(forces), np.array(normals), np.array(points), np.array(counts))
+
+    def _collision_object_leg(self, collision_object) -> int | None:
+        """The leg whose foot `collision_object` is, BODY for the body, None for anything else.
+        Asking DART for a shape's name costs ~5 us, so the answer is kept per collision object
+        (dartpy hands back the same Python object for the same DART collision object)."""
+        try:
+            return self._collision_legs[collision_object]
+        except KeyError:
+            name = collision_object.getShapeFrame().getName()
+            leg = self.foot_shape_leg.get(name, BODY if name.startswith("body") else None)
+            self._collision_legs[collision_object] = leg
+            return leg
+
+    def _foot_contacts(self, forces: np.ndarray, normals: np.ndarray, points: np.ndarray,
+                       counts: np.ndarray) -> FootContacts:
+        """FootContacts of the feet's summed contact forces, normals and points (`counts` each)."""
         touching = counts > 0
         normals[touching] /= np.linalg.norm(normals[touching], axis=1)[:, None]
         points[touching] /= counts[touching][:, None]
@@ -251,7 +276,7 @@ class Simulation:
             body_angular_acceleration=state.angular_acceleration,
             joint_positions=state.joint_positions,
             joint_velocities=state.joint_velocities,
-            foot_positions=state.feet.centers,
+            foot_positions=state.foot_centers,
             foot_forces=contacts.forces,
             foot_normal_forces=contacts.normal_forces,
             foot_contact=contacts.in_contact,
@@ -266,8 +291,10 @@ class Simulation:
             return bool(getattr(self, "_body_touches", False))
         transform = self._state.transform
         world_corners = self._body_corners @ transform[:3, :3].T + transform[:3, 3]
-        distance, _ = self.terrain.closest(world_corners)
-        return bool(np.any(distance < 0.0))
+        # Inside any candidate box, not only the nearest surface's (Terrain.closest): the same answer
+        # without picking the nearest, half the cost.
+        distance, _ = distances_to_boxes(world_corners, self.terrain.boxes, self.terrain.candidates(world_corners))
+        return bool((distance < 0.0).any())
 
     def body_tilt(self) -> float:
         """Angle between the body's z axis and the vertical, rad."""
@@ -286,13 +313,14 @@ class BodyState(NamedTuple):
     joint_positions: np.ndarray        # (18,) rad
     joint_velocities: np.ndarray       # (18,) rad/s
     com: np.ndarray                    # (3,) m, world: whole-robot centre of mass
-    feet: WorldFeet | None
+    foot_centers: np.ndarray | None    # (6, 3) m, world: foot sphere centres
+    foot_links: np.ndarray | None      # (6, 6, 3) the tibias' motion and pose (CompliantContact.compute's `links`)
 
     @staticmethod
     def zero() -> "BodyState":
         zero = np.zeros(3)
         return BodyState(0.0, np.eye(4), np.array([0.0, 0.0, 0.0, 1.0]), zero, zero, zero, zero,
-                         np.zeros(18), np.zeros(18), zero, None)
+                         np.zeros(18), np.zeros(18), zero, None, None)
 
 
 # The state read-out is compiled with numba: it is a few dozen scalar operations per leg, which
@@ -300,8 +328,10 @@ class BodyState(NamedTuple):
 @njit(cache=True)
 def _body_state(transform, twist, positions, velocities, previous_linear, previous_angular, dt, base_angle,
                 base_distance, a2, a3):
-    """Finiteness, quaternion, world-frame body velocities (from the body-frame twist), their finite
-    differences over the step, and the feet (kinematics.WorldFeet fields)."""
+    """Finiteness; the body's quaternion, world-frame velocities (from the body-frame twist) and their
+    finite differences over the step, in one (16,) array (four arrays fewer to hand back: numba
+    boxes each returned array at ~0.5 us); the foot centres (6, 3) and the tibias' motion and pose
+    (6, 6, 3) (kinematics.WorldFeet, packed as CompliantContact.compute's `links`)."""
     rotation = transform[:3, :3]
     angular, linear = np.empty(3), np.empty(3)
     for i in range(3):
@@ -314,8 +344,12 @@ def _body_state(transform, twist, positions, velocities, previous_linear, previo
     finite = np.isfinite(positions).all() and np.isfinite(velocities).all()
     centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
         rotation, transform[:3, 3], angular, linear, positions[6:], velocities[6:], base_angle, base_distance, a2, a3)
-    return (finite, rotation_to_quaternion(rotation), linear, angular, linear_acceleration, angular_acceleration,
-            centers, feet_velocities, spins, rotations, origins)
+    body = np.empty(16)
+    body[0:4] = rotation_to_quaternion(rotation)
+    body[4:7], body[7:10], body[10:13], body[13:16] = linear, angular, linear_acceleration, angular_acceleration
+    links = np.empty((6, 6, 3))
+    links[:, 0], links[:, 1], links[:, 2:5], links[:, 5] = feet_velocities, spins, rotations, origins
+    return finite, body, centers, links
 
 
 @njit(cache=True)
@@ -344,18 +378,6 @@ def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
     q[j] = (m[j, i] + m[i, j]) * t
     q[k] = (m[k, i] + m[i, k]) * t
     return q
-
-
-@njit(cache=True)
-def tibia_points(rotations: np.ndarray, origins: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(6, 3) world `points` in each tibia's link frame: R^T (p - o), leg by leg."""
-    local = np.empty_like(points)
-    for leg in range(len(points)):
-        for i in range(3):
-            local[leg, i] = (rotations[leg, 0, i] * (points[leg, 0] - origins[leg, 0])
-                             + rotations[leg, 1, i] * (points[leg, 1] - origins[leg, 1])
-                             + rotations[leg, 2, i] * (points[leg, 2] - origins[leg, 2]))
-    return local
 
 
 @njit(cache=True)

@@ -26,6 +26,26 @@ def stability_margin(polygon: np.ndarray, com_xy: np.ndarray) -> float:
     return _margin(np.ascontiguousarray(polygon, dtype=float).reshape(-1, 2), float(com_xy[0]), float(com_xy[1]))
 
 
+def debounced_support(last_touch: np.ndarray, contact: np.ndarray, t: float, feet: np.ndarray, com_xy: np.ndarray,
+                      debounce: float, resting: np.ndarray) -> tuple[np.ndarray, float]:
+    """The support polygon of the feet touching the ground now or within `debounce` s, or
+    `resting` (6,) bool on it, and the centre of mass's margin in it, in one compiled call:
+    `last_touch` (6,) holds each foot's latest touch time and is updated in place from `contact`
+    (6,) bool at time t; `feet` (6, 3)."""
+    return _debounced_support(last_touch, contact, t, feet, float(com_xy[0]), float(com_xy[1]), debounce, resting)
+
+
+@njit(cache=True)
+def _debounced_support(last_touch, contact, t, feet, com_x, com_y, debounce, resting):
+    supporting = np.empty(len(feet), np.bool_)
+    for leg in range(len(feet)):
+        if contact[leg]:
+            last_touch[leg] = t
+        supporting[leg] = resting[leg] or t - last_touch[leg] <= debounce
+    polygon = _monotone_chain(np.ascontiguousarray(feet[supporting, :2]))
+    return polygon, _margin(polygon, com_x, com_y)
+
+
 @njit(cache=True)
 def _monotone_chain(points):
     n = len(points)

@@ -6,7 +6,7 @@ controllers never see it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -15,8 +15,9 @@ JOINTS_PER_LEG = 3
 NUM_JOINTS = NUM_LEGS * JOINTS_PER_LEG
 
 
-@dataclass(frozen=True)
-class Truth:
+class Truth(NamedTuple):
+    """Immutable like every record of the run loop; a named tuple because one is built per physics
+    step, and a frozen dataclass's __init__ (a setattr call per field) costs twice as much."""
     t: float                                  # s, simulation time
     body_position: np.ndarray                 # (3,) m, world: body origin O_b (the main body's centre of mass)
     body_rotation: np.ndarray                 # (3, 3) rotation world_from_body

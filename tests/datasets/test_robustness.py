@@ -122,17 +122,19 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
     recorder = McapRecorder(tmp_path / "run.mcap")
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    writer = recorder._dataset._writer
-    original_add = writer.add_message
+    chunk_builder = recorder._dataset._writer._Writer__chunk_builder
+    original_add = chunk_builder.add_records
     calls = []
 
-    def add_then_interrupt(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 10:
-            os.kill(os.getpid(), signal.SIGINT)    # lands in the middle of a batch of writes
-        return original_add(*args, **kwargs)
+    def add_one_at_a_time_then_interrupt(messages, start, size_limit):
+        for index in range(start, len(messages)):     # the batch, message by message
+            calls.append(1)
+            if len(calls) == 10:
+                os.kill(os.getpid(), signal.SIGINT)    # lands in the middle of a batch of writes
+            original_add(messages[:index + 1], index, size_limit)
+        return len(messages)
 
-    writer.add_message = add_then_interrupt
+    chunk_builder.add_records = add_one_at_a_time_then_interrupt
     with pytest.raises(KeyboardInterrupt):
         for tick in ticks:
             recorder.record(tick)

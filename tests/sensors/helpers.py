@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -24,8 +22,7 @@ def truth(t: float = 0.0, rotation: np.ndarray | None = None, angular_velocity=(
           joint_positions: np.ndarray | None = None, foot_forces: np.ndarray | None = None) -> Truth:
     """A still body (sensors.still) with the given motion, joint angles and foot forces."""
     forces = np.full(NUM_LEGS, 4.0) if foot_forces is None else np.asarray(foot_forces, dtype=float)
-    return dataclasses.replace(
-        still_truth(t, rotation),
+    return still_truth(t, rotation)._replace(
         body_angular_velocity=np.asarray(angular_velocity, dtype=float),
         body_angular_acceleration=np.asarray(angular_acceleration, dtype=float),
         body_linear_acceleration=np.asarray(linear_acceleration, dtype=float),

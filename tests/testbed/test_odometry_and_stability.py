@@ -6,7 +6,7 @@ import pytest
 from testbed import config
 from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.stability import stability_margin, support_polygon
+from testbed.stability import debounced_support, stability_margin, support_polygon
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -69,6 +69,22 @@ def test_support_polygon_and_margin():
     two = support_polygon(np.array([[0.0, 0.0], [1.0, 0.0]]))
     assert stability_margin(two, np.array([0.5, 0.5])) == pytest.approx(-0.5)
     assert stability_margin(np.empty((0, 2)), np.zeros(2)) == -np.inf
+
+
+def test_debounced_support_keeps_recent_touches_and_matches_the_separate_functions():
+    rng = np.random.default_rng(4)
+    last_touch = np.full(6, -np.inf)
+    for step in range(200):
+        t = 0.001 * step
+        feet, com = rng.normal(0.0, 0.2, (6, 3)), rng.normal(0.0, 0.05, 3)
+        contact, resting = rng.random(6) < 0.4, rng.random(6) < 0.1
+        before = last_touch.copy()
+        polygon, margin = debounced_support(last_touch, contact, t, feet, com[:2], 0.005, resting)
+        supporting = contact | resting | (t - before <= 0.005)
+        expected = support_polygon(feet[supporting, :2])
+        np.testing.assert_array_equal(polygon, expected)
+        assert margin == stability_margin(expected, com[:2])
+        np.testing.assert_array_equal(last_touch, np.where(contact, t, before))
 
 
 def test_odometry_rotates_leg_displacements_by_the_given_heading():
@@ -182,7 +198,8 @@ def test_support_counts_touching_feet_and_stance_feet_resting_on_the_ground():
     stance = np.array([1, 1, 1, 0, 1, 1], bool)
 
     def polygon(t, contact):
-        return support.polygon(SimpleNamespace(t=t, foot_contact=contact, foot_positions=feet), stance)
+        truth = SimpleNamespace(t=t, foot_contact=contact, foot_positions=feet, com_position=np.zeros(3))
+        return support.polygon_and_margin(truth, stance)[0]
 
     assert np.allclose(polygon(0.0, touching), support_polygon(feet[[0, 1, 2, 3, 4], :2]))
     # The swing foot supports for CONTACT_DEBOUNCE after its touch; the stance feet on the ground
