@@ -9,10 +9,11 @@ step ahead of its neutral point: horizontally (1 - cos(pi u)) / 2 of the way, ve
 swing_height * sin(pi u), u the swing phase: an ellipse with semi-axes step/2 and swing_height.
 
 Touch-down confirmation (from the foot contact sensors, never truth): a swing ends when its foot
-reports ground; one that has not found it at the scheduled touch-down keeps reaching down, a
-little, while the gait clock waits, so that no leg lifts before the leg it relieves carries weight.
-The swing command runs ahead of the gait clock by the servos' time constant, so that the lagging
-foot itself follows the ellipse on schedule.
+reports ground at the end of the ellipse; one that has not found it at the scheduled touch-down
+keeps reaching down, a little, while the gait clock waits, so that no leg lifts before the leg it
+relieves carries weight. A foot lands where it touched and its planted height then settles back
+to the start stance's. The swing command runs ahead of the gait clock (two servo time constants),
+so that the lagging foot itself follows the ellipse on schedule.
 
 With terrain adaptation (the posture controller's, from the same sensors):
 a swing aims at the plane of the stance feet instead of the flat ground of the start stance, lands
@@ -40,6 +41,7 @@ GAIT_TABLE: dict[str, tuple[float, tuple[float, ...]]] = {
     "wave": (5 / 6, (2 / 6, 1 / 6, 0.0, 3 / 6, 4 / 6, 5 / 6)),
 }
 WALKING_GAITS = tuple(GAIT_TABLE)
+STANCE_SETTLE_TIME = 0.3    # s, planted feet return to the start stance's height (touch-down confirmation)
 ALL_GAITS = ("stand",) + WALKING_GAITS
 
 
@@ -76,8 +78,8 @@ class TerrainAdaptation:
     @staticmethod
     def confirmation(search_speed: float, search_depth: float) -> "TerrainAdaptation":
         """Touch-down confirmation alone: a swing ends when its foot touches at the end of the
-        ellipse, or after reaching down at most `search_depth` for the ground; the gait frame
-        stays level and a foot that touches early keeps to its plan (the gait knows no terrain)."""
+        ellipse, or after reaching down at most `search_depth` for the ground; touches earlier in
+        the swing are ignored and the gait frame stays level (this gait knows no terrain)."""
         return TerrainAdaptation(search_speed, search_depth, 1.0, math.inf)
 
 
@@ -190,13 +192,9 @@ class GaitGenerator:
         # Ground found in the second part of a swing, or at or after its scheduled end: land there.
         touched = state.swinging & contact & (~scheduled | (progress >= adaptation.touchdown_phase))
         if measured is not None:
-            # Terrain following lands a foot where it touched; touch-down confirmation alone only
-            # a foot that had to reach down (its target ran ahead of it), and keeps the plan else.
-            found = touched if adaptation.follows_terrain else touched & self.searching
-            state.feet[found] = measured[found]
-        if not adaptation.follows_terrain:
-            planned = touched & ~self.searching     # ends its ellipse at the touch-down point
-            state.feet[planned] = self._touchdown(command)[planned]
+            state.feet[touched] = measured[touched]     # where it touched, not where its lagging target got to
+        elif not adaptation.follows_terrain:
+            state.feet[touched] = self._touchdown(command)[touched]     # the ellipse's end
         state.swinging &= ~touched
         searching = state.swinging & ~scheduled
         self.searching = searching
@@ -212,11 +210,21 @@ class GaitGenerator:
             plane = self._walk_plane()
             touchdown[:, 2] = plane[0] + touchdown[:, :2] @ plane[1:]
         self._move_stance(~state.swinging, command, dt)
+        if not adaptation.follows_terrain:
+            self._settle_stance(dt)
         self._move_swing(progress, state.swinging & scheduled, touchdown)
         self.search_floor[state.swinging] = touchdown[state.swinging, 2] - adaptation.search_depth
         if adaptation.follows_terrain:
             self._follow_walk_plane(plane[0], dt)
         return state.feet.copy()
+
+    def _settle_stance(self, dt: float) -> None:
+        """Without terrain following, planted feet return to the start stance's height (first
+        order, STANCE_SETTLE_TIME): a foot lands where it touched, without a push, and the body
+        does not drift in height or tilt from one landing to the next."""
+        stance = ~self.state.swinging
+        feet = self.state.feet
+        feet[stance, 2] += (self.neutral[stance, 2] - feet[stance, 2]) * min(1.0, dt / STANCE_SETTLE_TIME)
 
     def _search(self, searching: np.ndarray, dt: float) -> None:
         """Lower the feet that found no ground; one that reaches the bottom of its workspace

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from testbed import config
-from testbed.gait import GAIT_TABLE, GaitGenerator, TerrainAdaptation, Twist
+from testbed.gait import GAIT_TABLE, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist
 from testbed.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -144,12 +144,25 @@ def test_a_foot_that_finds_no_ground_reaches_down_a_little_while_the_clock_waits
     assert gait.waited == pytest.approx(2 * depth / 0.1, abs=0.01)
 
 
-def test_touchdown_confirmation_keeps_the_plan_where_a_foot_touches_early():
-    """Without terrain following, a foot that meets higher ground before its touch-down point keeps
-    to its planned height (the gait knows no terrain; the posture controller's adaptation lands it)."""
+def test_touchdown_confirmation_lands_where_the_foot_met_the_ground_then_settles_to_the_stance():
+    """A rigid floor 5 mm above the start stance under the front left foot: it lands where it met
+    the floor, without a push, then its planted height returns to the start stance's
+    (STANCE_SETTLE_TIME): this gait knows no terrain, the stance stays the one it started in."""
     gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, TerrainAdaptation.confirmation(0.1, 0.01), lead=0.02)
-    ground = NEUTRAL[:, 2] + 0.005          # 5 mm higher everywhere than the start stance
-    feet, swinging = run_gait(gait, 2.5, Twist(vx=0.1), ground)
-    stance = ~swinging[-1]
-    assert stance.sum() == 3 and np.allclose(feet[-1, stance, 2], NEUTRAL[stance, 2], atol=1e-12)
-    assert gait.waited == 0.0
+    floor = NEUTRAL[:, 2].copy()
+    floor[0] += 0.005
+    heights, swinging = [], []
+    for k in range(1, 2501):
+        feet = gait.state.feet
+        on_floor = feet.copy()
+        on_floor[:, 2] = np.maximum(feet[:, 2], floor)      # the foot stops on the floor, its target may not
+        gait.step(k * DT, DT, Twist(vx=0.1), feet[:, 2] <= floor + 1e-9, on_floor)
+        heights.append(gait.state.feet[0, 2])
+        swinging.append(gait.state.swinging[0])
+    heights, swinging = np.array(heights), np.array(swinging)
+    landing = np.flatnonzero(np.diff(swinging.astype(int)) == -1)[0] + 1
+    assert heights[landing] == pytest.approx(floor[0], abs=2e-4)
+    stance = heights[landing:landing + 450]
+    assert np.all(np.diff(stance) <= 1e-15)                     # settling down, never pushing up
+    expected = 0.005 * np.exp(-0.449 / STANCE_SETTLE_TIME)
+    assert stance[-1] - NEUTRAL[0, 2] == pytest.approx(expected, rel=0.1)
