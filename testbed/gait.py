@@ -41,7 +41,10 @@ GAIT_TABLE: dict[str, tuple[float, tuple[float, ...]]] = {
     "wave": (5 / 6, (2 / 6, 1 / 6, 0.0, 3 / 6, 4 / 6, 5 / 6)),
 }
 WALKING_GAITS = tuple(GAIT_TABLE)
-STANCE_SETTLE_TIME = 0.3    # s, planted feet return to the start stance's height (touch-down confirmation)
+# s: planted feet return to the start stance's height after touch-down confirmation. Gradual, so
+# that a landing does not push a foot into DART's rigid ground; short, so that on a slope (where
+# this gait lands uphill feet high) the body is back on its stance within a tenth of a step.
+STANCE_SETTLE_TIME = 0.05
 ALL_GAITS = ("stand",) + WALKING_GAITS
 
 

@@ -162,7 +162,8 @@ def test_touchdown_confirmation_lands_where_the_foot_met_the_ground_then_settles
     heights, swinging = np.array(heights), np.array(swinging)
     landing = np.flatnonzero(np.diff(swinging.astype(int)) == -1)[0] + 1
     assert heights[landing] == pytest.approx(floor[0], abs=2e-4)
-    stance = heights[landing:landing + 450]
+    stance = heights[landing:landing + 450] - NEUTRAL[0, 2]
     assert np.all(np.diff(stance) <= 1e-15)                     # settling down, never pushing up
-    expected = 0.005 * np.exp(-0.449 / STANCE_SETTLE_TIME)
-    assert stance[-1] - NEUTRAL[0, 2] == pytest.approx(expected, rel=0.1)
+    ticks = int(round(2 * STANCE_SETTLE_TIME / DT))             # first order: e^-2 left after two time constants
+    assert stance[ticks] == pytest.approx(0.005 * (1 - DT / STANCE_SETTLE_TIME) ** (ticks + 1), rel=0.05)
+    assert abs(stance[-1]) < 1e-6
