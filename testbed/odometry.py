@@ -83,9 +83,8 @@ class LegOdometry:
 
     def _read(self, joint_positions: np.ndarray, stance: np.ndarray, heading: float | None) -> _Reading:
         pitch = joint_positions[1::3] + joint_positions[2::3]
-        # NB: on the first reading `~False` is the integer -1, so `planted` becomes 0/1 indices and
-        # only the feet at indices 0 and 1 can take their planted pitch (the others keep 0).
-        planted = stance & ~(self._reference.stance if self._reference is not None else False)
+        # Feet put down since the last reading (at the first reading, every stance foot).
+        planted = stance & ~self._reference.stance if self._reference is not None else np.array(stance, dtype=bool)
         self._planted_pitch[planted] = pitch[planted]
         g = self.geometry
         table = _reading_table(joint_positions, self._planted_pitch, self.foot_radius, FOOT_POSITION_STD**2,
