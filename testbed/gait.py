@@ -129,9 +129,8 @@ class GaitGenerator:
 
     def _progress(self, phase: np.ndarray) -> np.ndarray:
         """Where each swing's command is on its ellipse: the phase's share of the swing plus the
-        lead, so that the servos' first-order lag (time constant `lead`) puts the foot itself on
-        the ellipse on schedule and on the ground at the scheduled touch-down; the command then
-        waits at the touch-down point."""
+        lead, so that the lagging servos put the foot itself on the ellipse about on schedule and
+        on the ground by the scheduled touch-down; the command then waits at the touch-down point."""
         swing_time = (1.0 - self.duty) * self.period
         return np.clip((phase - self.duty) / (1.0 - self.duty) + self.lead / swing_time, 0.0, 1.0)
 

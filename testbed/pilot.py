@@ -20,8 +20,8 @@ from testbed.startup import CalibrationPoses
 
 
 # The swing command leads the gait clock by two servo time constants: a first-order servo tracks a
-# ramp one time constant late, and the remaining gap at a stop decays as exp(-t / tau), so the foot
-# meets the ground about e^-1 of a lag (0.6-1.4 mm for these gaits) before its scheduled touch-down.
+# ramp one time constant late, and the gap left when the command stops decays as exp(-t / tau), so
+# at its scheduled touch-down the foot is e^-2 of a lag (0.7 mm tripod, 1.4 mm wave) from the ground.
 SWING_LEAD_TIME_CONSTANTS = 2.0
 
 
