@@ -98,12 +98,17 @@ def test_stop_finishes_swings_then_keeps_all_feet_down():
 
 
 def run_gait(gait, seconds, command=Twist(vx=0.1), ground=None):
-    """Feet and swing flags per tick; with `ground` (z per leg, body frame) the feet report
-    contact when their target reaches it, as a foot sensor on a rigid floor would."""
+    """Feet and swing flags per tick; with `ground` (z per leg, body frame) a rigid floor: the feet
+    report contact when their target reaches it, and stand on it however far below it their
+    targets go."""
     feet, swinging = [], []
     for k in range(1, int(round(seconds / DT)) + 1):
-        contact = None if ground is None else gait.state.feet[:, 2] <= ground + 1e-9
-        feet.append(gait.step(k * DT, DT, command, contact, None if ground is None else gait.state.feet.copy()))
+        contact = measured = None
+        if ground is not None:
+            contact = gait.state.feet[:, 2] <= ground + 1e-9
+            measured = gait.state.feet.copy()
+            measured[:, 2] = np.maximum(measured[:, 2], ground)
+        feet.append(gait.step(k * DT, DT, command, contact, measured))
         swinging.append(gait.state.swinging.copy())
     return np.array(feet), np.array(swinging)
 
@@ -151,15 +156,8 @@ def test_touchdown_confirmation_lands_where_the_foot_met_the_ground_then_settles
     gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, TerrainAdaptation.confirmation(0.1, 0.01), lead=0.02)
     floor = NEUTRAL[:, 2].copy()
     floor[0] += 0.005
-    heights, swinging = [], []
-    for k in range(1, 2501):
-        feet = gait.state.feet
-        on_floor = feet.copy()
-        on_floor[:, 2] = np.maximum(feet[:, 2], floor)      # the foot stops on the floor, its target may not
-        gait.step(k * DT, DT, Twist(vx=0.1), feet[:, 2] <= floor + 1e-9, on_floor)
-        heights.append(gait.state.feet[0, 2])
-        swinging.append(gait.state.swinging[0])
-    heights, swinging = np.array(heights), np.array(swinging)
+    feet, swinging = run_gait(gait, 2.5, Twist(vx=0.1), floor)
+    heights, swinging = feet[:, 0, 2], swinging[:, 0]
     landing = np.flatnonzero(np.diff(swinging.astype(int)) == -1)[0] + 1
     assert heights[landing] == pytest.approx(floor[0], abs=2e-4)
     stance = heights[landing:landing + 450] - NEUTRAL[0, 2]
