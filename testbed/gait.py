@@ -13,7 +13,9 @@ reports ground at the end of the ellipse; one that has not found it at the sched
 keeps reaching down, a little, while the gait clock waits, so that no leg lifts before the leg it
 relieves carries weight. A foot lands where it touched and its planted height then settles back
 to the start stance's. The swing command runs ahead of the gait clock (two servo time constants),
-so that the lagging foot itself follows the ellipse on schedule.
+so that the lagging foot itself follows the ellipse on schedule. A foot that touches something
+while it rises (a step's riser) stops moving forward and keeps rising until it is clear (elevator
+reflex).
 
 With terrain adaptation (the posture controller's, from the same sensors):
 a swing aims at the plane of the stance feet instead of the flat ground of the start stance, lands
@@ -46,6 +48,9 @@ WALKING_GAITS = tuple(GAIT_TABLE)
 # this gait lands uphill feet high) the body is back on its stance within a tenth of a step.
 STANCE_SETTLE_TIME = 0.05
 ALL_GAITS = ("stand",) + WALKING_GAITS
+# The elliptic swing rises over the first half of its progress: a touch then is an obstacle met on
+# the way up (elevator reflex), not the ground to land on.
+RISING_HALF = 0.5
 
 
 @dataclass(frozen=True)
@@ -214,11 +219,27 @@ class GaitGenerator:
         self._move_stance(~state.swinging, command, dt)
         if not adaptation.follows_terrain:
             self._settle_stance(dt)
-        self._move_swing(progress, state.swinging & scheduled, touchdown)
+        swinging = state.swinging & scheduled
+        blocked = swinging & contact & (progress < RISING_HALF)
+        if blocked.any():
+            self._hold_blocked(blocked, progress, touchdown, state.feet if measured is None else measured,
+                               command, dt)
+        self._move_swing(progress, swinging, touchdown)
         self.search_floor[state.swinging] = touchdown[state.swinging, 2] - adaptation.search_depth
         if adaptation.follows_terrain:
             self._follow_walk_plane(plane[0], dt)
         return state.feet.copy()
+
+    def _hold_blocked(self, blocked: np.ndarray, progress: np.ndarray, touchdown: np.ndarray,
+                      feet: np.ndarray, command: Twist, dt: float) -> None:
+        """Elevator reflex (Cruse's Walknet): a swing foot that meets something while it rises, such
+        as a step's riser, stops moving forward over the ground where it is (`feet`: the encoders')
+        and keeps rising until it is clear, instead of pushing into the obstacle and being dragged
+        up it. The swing's start is moved so that the rest of the ellipse begins where the foot is
+        held: once clear, it goes on to its touch-down point without a jump."""
+        held = feet[blocked, :2] - command.foot_velocity(feet[blocked])[:, :2] * dt
+        blend = (1.0 - np.cos(np.pi * progress[blocked])) / 2.0
+        self.state.liftoff[blocked, :2] = (held - touchdown[blocked, :2] * blend[:, None]) / (1.0 - blend[:, None])
 
     def _settle_stance(self, dt: float) -> None:
         """Without terrain following, planted feet return to the start stance's height (first

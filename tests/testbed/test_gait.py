@@ -165,3 +165,44 @@ def test_touchdown_confirmation_lands_where_the_foot_met_the_ground_then_settles
     ticks = int(round(2 * STANCE_SETTLE_TIME / DT))             # first order: e^-2 left after two time constants
     assert stance[ticks] == pytest.approx(0.005 * (1 - DT / STANCE_SETTLE_TIME) ** (ticks + 1), rel=0.05)
     assert abs(stance[-1]) < 1e-6
+
+
+def test_a_swing_foot_that_meets_a_riser_stops_over_the_ground_and_rises_over_it():
+    """Elevator reflex: a step 15 mm high, its riser 5 mm ahead of where the front left foot lifts
+    off. Touching the riser on the way up, the foot holds its place over the ground (it does not
+    push into the riser) until it is above the step, then goes on along its ellipse and lands on the step."""
+    speed, period, top = 0.1, 1.0, 0.015
+    adaptation = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=np.inf)
+    gait = GaitGenerator("tripod", NEUTRAL, period, 0.03, adaptation)
+    run_gait(gait, 0.5, Twist(vx=speed), NEUTRAL[:, 2])             # to leg 1's lift-off
+    riser = gait.state.feet[0, 0] + 0.5 * speed + 0.005             # world x (the body is at 0.5 * speed)
+    ground = NEUTRAL[0, 2]
+    rows = []
+    for k in range(int(0.5 / DT) + 1, int(1.05 / DT) + 1):
+        body = k * DT * speed
+        feet = gait.state.feet
+        # The step is the solid x >= riser, z < top: a foot target inside it stands on its nearer face.
+        floor = NEUTRAL[:, 2].copy()
+        measured = feet.copy()
+        inside_x, inside_z = feet[0, 0] + body - riser, ground + top - feet[0, 2]
+        against_riser = 0.0 <= inside_x < inside_z
+        if against_riser:
+            measured[0, 0] = riser - body
+        elif inside_x >= 0.0:
+            floor[0] = ground + top
+        measured[:, 2] = np.maximum(feet[:, 2], floor)
+        contact = feet[:, 2] <= floor + 1e-9
+        contact[0] |= against_riser
+        gait.step(k * DT, DT, Twist(vx=speed), contact, measured)
+        rows.append((body + gait.state.feet[0, 0], gait.state.feet[0, 2] - ground, gait.state.swinging[0]))
+    world_x, height, swinging = np.array(rows).T
+    climbing = swinging.astype(bool) & (np.cumsum(height >= top) == 0)     # the swing until it clears the step
+    assert np.any(world_x[climbing] >= riser - 1e-9)                # it met the riser on the way up
+    # ... and never pushed into it, beyond one tick of travel (at most pi / 2 * 5 cm / 500 ticks,
+    # 0.16 mm) before each touch is reported.
+    assert world_x[climbing].max() - riser < 2e-4
+    landing = np.flatnonzero(np.diff(swinging) == -1)[0] + 1
+    # On the step (where it touched, then the first tick of settling towards the start stance).
+    assert height[landing] == pytest.approx(top * (1 - DT / STANCE_SETTLE_TIME), abs=1e-9)
+    ellipse_end = NEUTRAL[0, 0] + 0.25 * speed * period + 1.0 * speed     # world, at t = 1 s
+    assert riser + 0.005 < world_x[landing] < ellipse_end           # on the way down to it, over the step
