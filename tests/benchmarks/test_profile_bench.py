@@ -11,7 +11,7 @@ import time
 import pytest
 
 from testbed import bench_report, config
-from testbed.profile import profile
+from testbed.profile import DEFAULT_DURATION, profile
 
 pytestmark = pytest.mark.bench
 TARGET = 5.0
@@ -22,7 +22,7 @@ def test_full_pipeline_is_at_least_5_times_faster_than_real_time(request, capsys
         pytest.skip("a benchmark: run it with -m bench (make bench)")
     load = os.getloadavg()[0]
     cfg = config.load(overrides={"run": {"terrain": "step", "gait": "tripod", "estimator": "ekf",
-                                         "controller": "posture", "duration": 3.0}})
+                                         "controller": "posture", "duration": DEFAULT_DURATION}})
     result = profile(cfg)
     table = result.table()
     with capsys.disabled():
