@@ -12,7 +12,10 @@ from functools import cached_property
 from typing import Literal, NamedTuple
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from testbed.config import RobotConfig
 
@@ -87,6 +90,30 @@ def leg_transform(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
         [0.0, 0.0, 0.0, 1.0],
     ])
     return base_transform(geom, leg) @ t30
+
+
+@intrinsic
+def fused_multiply_add(typingctx, a, b, c):
+    """a * b + c with one rounding (compiled code only). OpenBLAS's kernels, which numpy's `@` and
+    `linalg.solve` run even on 3x3 matrices, accumulate their sums of products this way; compiled
+    code that does the same gives numpy's results bit for bit."""
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(double, [double] * 3), "llvm.fma.f64")
+        return builder.call(function, args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@njit(cache=True)
+def rows_times_matrix(points, matrix, out):
+    """out = points @ matrix for (n, 3) points and a 3x3 matrix, in numpy's order: row by row, each
+    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel)."""
+    for row in range(points.shape[0]):
+        for col in range(3):
+            total = points[row, 0] * matrix[0, col]
+            total = fused_multiply_add(points[row, 1], matrix[1, col], total)
+            out[row, col] = fused_multiply_add(points[row, 2], matrix[2, col], total)
+    return out
 
 
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
