@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from testbed.posture import correction_rotation
+from testbed.posture import tilted_targets
 
 # (roll, pitch) in units of the tilt, visited in this order after the still start.
 POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
@@ -76,4 +76,4 @@ class CalibrationPoses:
         roll, pitch = self.body_tilt(t)
         if roll == 0.0 and pitch == 0.0:
             return feet
-        return feet @ correction_rotation(roll, pitch)          # rows: R^T p, R = Ry(pitch) Rx(roll)
+        return tilted_targets(feet, roll, pitch, 0.0)          # rows: R^T p, R = Ry(pitch) Rx(roll)
