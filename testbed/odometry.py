@@ -107,9 +107,10 @@ class LegOdometry:
         """Add a shift given in the body frame of the reference reading: rotated by its heading
         (by the legs' yaw without one)."""
         yaw = self.yaw if heading is None else heading
-        c, s = np.cos(yaw), np.sin(yaw)
-        self.x += c * shift[0] - s * shift[1]
-        self.y += s * shift[0] + c * shift[1]
+        c, s = math.cos(yaw), math.sin(yaw)
+        shift_x, shift_y = shift.tolist()
+        self.x += c * shift_x - s * shift_y
+        self.y += s * shift_x + c * shift_y
 
 
 def _rigid_motion(before: _Reading, after: _Reading) -> tuple[float, np.ndarray] | None:
@@ -198,6 +199,7 @@ class GyroHeading:
         self.calibration_time = calibration_time
         self.yaw = 0.0
         self.bias = np.zeros(3)
+        self._bias = (0.0, 0.0, 0.0)          # the same as Python floats
         self._sum = np.zeros(3)
         self._count = 0
         self._attitude = rot.IDENTITY        # world_from_body since the start, (x, y, z, w)
@@ -205,17 +207,19 @@ class GyroHeading:
 
     def update(self, t: float, rate: np.ndarray) -> None:
         """A body-frame angular rate sample (rad/s) at time t."""
-        if not all(map(math.isfinite, rate.tolist())):
+        wx, wy, wz = rate.tolist()
+        if not (math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)):
             return
         if t < self.calibration_time:
             self._sum += rate
             self._count += 1
             self.bias = self._sum / self._count
+            self._bias = tuple(self.bias.tolist())
         elif self._last_t is not None:
             dt = t - self._last_t
             # Python floats: the rotation helpers' scalar arithmetic on them is several times
-            # faster than on numpy scalars, with the same IEEE results.
-            wx, wy, wz = ((rate - self.bias) * dt).tolist()
-            self._attitude = rot.rotate_by_vector(self._attitude, wx, wy, wz)
+            # faster than on numpy scalars (and numpy's on 3-vectors), with the same IEEE results.
+            bx, by, bz = self._bias
+            self._attitude = rot.rotate_by_vector(self._attitude, (wx - bx) * dt, (wy - by) * dt, (wz - bz) * dt)
             self.yaw = rot.euler_from_quaternion(self._attitude)[2]
         self._last_t = t
