@@ -121,13 +121,18 @@ class GaitGenerator:
             self.duty, self.swing_start = duty, np.asarray(starts, dtype=float)
         self.state = GaitState(self.neutral.copy(), np.zeros(6, bool), self.neutral.copy())
         self.stopping = False
+        self._stepped_phase = (math.nan, np.zeros(6))     # (gait time, phase) of the last step
 
     @property
     def stance_time(self) -> float:
         return self.duty * self.period
 
     def phase(self, t: float) -> np.ndarray:
-        """(6,) phase of each leg in [0, 1): stance below the duty factor, swing above."""
+        """(6,) phase of each leg in [0, 1): stance below the duty factor, swing above. At the
+        last step's gait time, that step's array (never written again: a new one per step)."""
+        stepped_time, stepped_phase = self._stepped_phase
+        if t == stepped_time:
+            return stepped_phase
         return _phase(t, self.period, self.swing_start, self.duty, np.empty(6))
 
     def scheduled_swing(self, t: float) -> np.ndarray:
@@ -152,21 +157,24 @@ class GaitGenerator:
         and terrain adaptation use `contact` (the foot sensors) and `measured`, the feet where the
         joint encoders put them (gait frame): a foot lands where it touched, not where its lagging
         target had got to. Without `contact` the gait follows its schedule blindly."""
-        state = self.state
+        state, phase = self.state, np.empty(6)
         if self.adaptation is None or contact is None:
             _blind_step(t, dt, command.vx, command.vy, command.wz, self.name != "stand", self.stopping,
                         self.period, self.swing_start, self.duty, self.lead, self.stance_time, self.swing_height,
-                        self.neutral, state.feet, state.swinging, state.liftoff)
+                        self.neutral, phase, state.feet, state.swinging, state.liftoff)
+            self._stepped_phase = (t, phase)
             return state.feet.copy()
         adaptation = self.adaptation
         has_measured = measured is not None
+        gait_time = self.clock(t)
         searched, plane_shift = _adaptive_step(
-            self.clock(t), dt, command.vx, command.vy, command.wz, np.asarray(contact, dtype=bool),
+            gait_time, dt, command.vx, command.vy, command.wz, np.asarray(contact, dtype=bool),
             measured if has_measured else state.feet, has_measured, self.stopping,
             self.period, self.swing_start, self.duty, self.lead, self.stance_time, self.swing_height,
             self.neutral, self.neutral_height, adaptation.search_speed, adaptation.search_depth,
             adaptation.touchdown_phase, adaptation.plane_time_constant, adaptation.follows_terrain,
-            state.feet, state.swinging, state.liftoff, self.scheduled, self.search_floor, self.searching)
+            phase, state.feet, state.swinging, state.liftoff, self.scheduled, self.search_floor, self.searching)
+        self._stepped_phase = (gait_time, phase)
         if searched:
             self.waited += dt           # the clock waits: no leg lifts, the body does not move
         elif adaptation.follows_terrain:
@@ -245,9 +253,9 @@ def _move_swing(feet, liftoff, progress, swing, touchdown, swing_height):
 
 @njit(cache=True)
 def _blind_step(t, dt, vx, vy, wz, walking, stopping, period, swing_start, duty, lead, stance_time, swing_height,
-                neutral, feet, swinging, liftoff):
-    """The gait on its schedule alone: no foot sensors, no terrain."""
-    phase = _phase(t, period, swing_start, duty, np.empty(6))
+                neutral, phase, feet, swinging, liftoff):
+    """The gait on its schedule alone: no foot sensors, no terrain. `phase` receives the legs' phases."""
+    _phase(t, period, swing_start, duty, phase)
     swing = phase >= duty
     if not walking:
         swing[:] = False
@@ -270,10 +278,11 @@ def _blind_step(t, dt, vx, vy, wz, walking, stopping, period, swing_start, duty,
 def _adaptive_step(t, dt, vx, vy, wz, contact, measured, has_measured, stopping,
                    period, swing_start, duty, lead, stance_time, swing_height, neutral, neutral_height,
                    search_speed, search_depth, touchdown_phase, plane_time_constant, follows_terrain,
-                   feet, swinging, liftoff, scheduled, search_floor, searching):
-    """The gait with touch-down confirmation and terrain adaptation, at gait time t. Returns
-    (whether feet searched the ground, so that the clock waited; the gait frame's vertical shift)."""
-    phase = _phase(t, period, swing_start, duty, np.empty(6))
+                   phase, feet, swinging, liftoff, scheduled, search_floor, searching):
+    """The gait with touch-down confirmation and terrain adaptation, at gait time t (`phase`
+    receives the legs' phases). Returns (whether feet searched the ground, so that the clock
+    waited; the gait frame's vertical shift)."""
+    _phase(t, period, swing_start, duty, phase)
     now = phase >= duty
     if stopping:
         now &= scheduled | swinging

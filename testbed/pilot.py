@@ -65,6 +65,7 @@ class Pilot:
         self.heading_reference = 0.0
         self.body_from_imu = np.array(config.sensors.imu.body_from_sensor)
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
+        self.walking_gait = config.run.gait != "stand"
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
@@ -74,9 +75,10 @@ class Pilot:
         loop: a test-only switch that feeds ground truth, to tell the estimator's share of the
         posture error from the controller's."""
         estimates = self._absorb(samples)
-        twist = self._twist(t)
+        walking = self._walking(t)
+        twist = self._twist(t) if walking else Twist()
         gait_time = t - self.startup_time
-        if self._walking(t):
+        if walking:
             feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
             feet = self.gait.state.feet.copy()
@@ -133,11 +135,10 @@ class Pilot:
 
     def _walking(self, t: float) -> bool:
         """Walking gaits start after the start-up: the still robot and its calibration poses."""
-        return self.config.run.gait != "stand" and t >= self.startup_time
+        return self.walking_gait and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
-        if not self._walking(t):
-            return Twist()
+        """The body twist to walk with at time t (walking)."""
         gait = self.config.gait
         ramp = min(1.0, (t - self.startup_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
         if self.walker is not None:
