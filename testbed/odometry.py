@@ -211,27 +211,59 @@ class GyroHeading:
         self.calibration_time = calibration_time
         self.yaw = 0.0
         self.bias = np.zeros(3)
-        self._bias = (0.0, 0.0, 0.0)          # the same as Python floats
         self._sum = np.zeros(3)
         self._count = 0
-        self._attitude = rot.IDENTITY        # world_from_body since the start, (x, y, z, w)
+        self._attitude = np.array(rot.IDENTITY)      # world_from_body since the start, (x, y, z, w)
         self._last_t: float | None = None
 
     def update(self, t: float, rate: np.ndarray) -> None:
-        """A body-frame angular rate sample (rad/s) at time t."""
-        wx, wy, wz = rate.tolist()
-        if not (math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)):
-            return
-        if t < self.calibration_time:
-            self._sum += rate
-            self._count += 1
-            self.bias = self._sum / self._count
-            self._bias = tuple(self.bias.tolist())
-        elif self._last_t is not None:
-            dt = t - self._last_t
-            # Python floats: the rotation helpers' scalar arithmetic on them is several times
-            # faster than on numpy scalars (and numpy's on 3-vectors), with the same IEEE results.
-            bx, by, bz = self._bias
-            self._attitude = rot.rotate_by_vector(self._attitude, (wx - bx) * dt, (wy - by) * dt, (wz - bz) * dt)
-            self.yaw = rot.euler_from_quaternion(self._attitude)[2]
+        """A body-frame angular rate sample (rad/s) at time t; one that is not finite is ignored."""
+        if t >= self.calibration_time and self._last_t is not None:
+            finite, yaw = _turn(self._attitude, rate, self.bias, t - self._last_t)
+            if not finite:
+                return
+            self.yaw = yaw
+        else:
+            if not np.isfinite(rate).all():
+                return
+            if t < self.calibration_time:
+                self._sum += rate
+                self._count += 1
+                self.bias = self._sum / self._count
         self._last_t = t
+
+
+# Compiled: at the IMU rate the rotation helpers on Python floats cost 2.3 us a sample, against 0.5.
+@njit(cache=True)
+def _turn(attitude, rate, bias, dt):
+    """(whether `rate` is finite, the new yaw): `attitude` (x, y, z, w) followed, in place, by the
+    body-frame rotation (rate - bias) dt. The operations of estimators.rotations.rotate_by_vector
+    and the yaw of euler_from_quaternion in the same order, so the same numbers to the last bit
+    (tests/testbed/test_odometry_and_stability.py compares them)."""
+    for axis in range(3):
+        if not math.isfinite(rate[axis]):
+            return False, 0.0
+    rx, ry, rz = (rate[0] - bias[0]) * dt, (rate[1] - bias[1]) * dt, (rate[2] - bias[2]) * dt
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle < 1e-8:
+        qx, qy, qz, qw = _normalized(0.5 * rx, 0.5 * ry, 0.5 * rz, 1.0)
+    else:
+        scale = math.sin(0.5 * angle) / angle
+        qx, qy, qz, qw = scale * rx, scale * ry, scale * rz, math.cos(0.5 * angle)
+    px, py, pz, pw = attitude[0], attitude[1], attitude[2], attitude[3]
+    x, y, z, w = _normalized(pw * qx + px * qw + py * qz - pz * qy,
+                             pw * qy - px * qz + py * qw + pz * qx,
+                             pw * qz + px * qy - py * qx + pz * qw,
+                             pw * qw - px * qx - py * qy - pz * qz)
+    attitude[0], attitude[1], attitude[2], attitude[3] = x, y, z, w
+    return True, math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+@njit(cache=True)
+def _normalized(x, y, z, w):
+    """estimators.rotations.normalized: unit length, w >= 0; the identity for a zero or broken q."""
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not norm > 0 or not math.isfinite(norm):
+        return 0.0, 0.0, 0.0, 1.0
+    sign = 1.0 if w >= 0 else -1.0
+    return sign * x / norm, sign * y / norm, sign * z / norm, sign * w / norm
