@@ -116,6 +116,16 @@ def rows_times_matrix(points, matrix, out):
     return out
 
 
+@njit(cache=True)
+def matrix_times_vector(matrix, vector, out):
+    """out = matrix @ vector for a 3x3 matrix and a contiguous 3-vector, in numpy's order
+    (OpenBLAS's dgemv: the first two products summed first, then the third, fused)."""
+    for row in range(3):
+        first_two = fused_multiply_add(matrix[row, 0], vector[0], matrix[row, 1] * vector[1])
+        out[row] = fused_multiply_add(matrix[row, 2], vector[2], first_two)
+    return out
+
+
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
     """(6, 3) foot positions p_i^b for the 18 joint angles q: eq. 2 for all legs at once."""
     return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.base_cos, geom.base_sin,

@@ -59,11 +59,10 @@ class Pilot:
         self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
-        self.heading = GyroHeading(config.gait.still_time)
+        self.heading = GyroHeading(config.gait.still_time, config.sensors.imu.body_from_sensor)
         self.startup = CalibrationPoses.from_gait(config.gait)
         self.startup_time = self.startup.end
         self.heading_reference = 0.0
-        self.body_from_imu = np.array(config.sensors.imu.body_from_sensor)
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
         self.walking_gait = config.run.gait != "stand"
         self.foot_contact = np.ones(6, dtype=bool)
@@ -123,7 +122,7 @@ class Pilot:
                     estimates.append(estimate)
                     self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
-                self.heading.update(sample.t, self.body_from_imu @ sample.gyro)
+                self.heading.update(sample.t, sample.gyro)
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):

@@ -7,8 +7,8 @@ import pytest
 from testbed import config
 from testbed.kinematics import (LegGeometry, UnreachableTarget, foot_jacobian, foot_positions,
                                 inverse_kinematics, inverse_kinematics_all, inverse_kinematics_legs,
-                                joint_targets_or_last, leg_transform, nominal_stance, rows_times_matrix,
-                                world_feet)
+                                joint_targets_or_last, leg_transform, matrix_times_vector, nominal_stance,
+                                rows_times_matrix, world_feet)
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset
 from testbed.simulation import load_robot
 
@@ -162,12 +162,13 @@ def test_the_controllers_inverse_kinematics_is_the_batched_one():
         assert all_reached == reachable.all()
 
 
-def test_rows_times_matrix_is_numpys_product_bit_for_bit():
+def test_the_compiled_products_are_numpys_bit_for_bit():
     rng = np.random.default_rng(6)
     for _ in range(2000):
-        points, matrix = rng.normal(0.0, 0.1, (6, 3)), rng.normal(0.0, 1.0, (3, 3))
+        points, matrix, vector = rng.normal(0.0, 0.1, (6, 3)), rng.normal(0.0, 1.0, (3, 3)), rng.normal(0.0, 1.0, 3)
         assert rows_times_matrix(points, matrix, np.empty((6, 3))).tobytes() == (points @ matrix).tobytes()
         assert rows_times_matrix(points, matrix.T, np.empty((6, 3))).tobytes() == (points @ matrix.T).tobytes()
+        assert matrix_times_vector(matrix, vector, np.empty(3)).tobytes() == (matrix @ vector).tobytes()
 
 
 def test_inverse_kinematics_agrees_with_an_independent_numpy_version():
