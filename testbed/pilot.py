@@ -149,8 +149,8 @@ class Pilot:
         self.heading_reference += gait.turn_rate * ramp * self.dt
         drift = self.heading_reference - self.heading.yaw
         # numpy's arctan2 (its own SIMD code on this CPU) can differ from the C library's in the last bit
-        error = np.arctan2(math.sin(drift), math.cos(drift))
-        correction = float(min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate))
+        error = float(np.arctan2(math.sin(drift), math.cos(drift)))
+        correction = min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate)
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
 
     def _solve_ik(self, feet: np.ndarray) -> None:
