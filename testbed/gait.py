@@ -220,8 +220,7 @@ def _foot_velocity(feet, vx, vy, wz):
 @njit(cache=True)
 def _touchdown(neutral, stance_time, vx, vy, wz):
     """Half a step ahead of the neutral point, for the current command."""
-    touchdown = neutral + 0.5 * stance_time * _foot_velocity(neutral, vx, vy, wz)
-    return touchdown
+    return neutral + 0.5 * stance_time * _foot_velocity(neutral, vx, vy, wz)
 
 
 @njit(cache=True)
@@ -232,7 +231,6 @@ def _move_stance(feet, stance, vx, vy, wz, dt):
             velocity_x, velocity_y = vx - wz * feet[leg, 1], vy + wz * feet[leg, 0]
             feet[leg, 0] -= velocity_x * dt
             feet[leg, 1] -= velocity_y * dt
-            feet[leg, 2] -= 0.0 * dt
 
 
 @njit(cache=True)

@@ -107,7 +107,8 @@ def fused_multiply_add(typingctx, a, b, c):
 @njit(cache=True)
 def rows_times_matrix(points, matrix, out):
     """out = points @ matrix for (n, 3) points and a 3x3 matrix, in numpy's order: row by row, each
-    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel)."""
+    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel). `out`
+    must be another array than `points`."""
     for row in range(points.shape[0]):
         for col in range(3):
             total = points[row, 0] * matrix[0, col]
@@ -258,7 +259,8 @@ def inverse_kinematics_legs(geom: LegGeometry, targets: np.ndarray, fallback: np
 def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, bool]:
     """A controller's inverse kinematics, knee up: (18,) joint angles for (6, 3) foot targets, a leg
     out of reach keeping its `last` angles, and whether every leg reached its target. The angles
-    of `inverse_kinematics_legs` (one compiled call with less around it: 2 us against 3.1)."""
+    of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
+    the mask's `all`)."""
     return _solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
                                geom.lower, geom.upper, _elbow_sign("up"), last)
 

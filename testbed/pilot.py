@@ -137,7 +137,7 @@ class Pilot:
         return self.walking_gait and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
-        """The body twist to walk with at time t (walking)."""
+        """The body twist at time t, once walking."""
         gait = self.config.gait
         ramp = min(1.0, (t - self.startup_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
         if self.walker is not None:

@@ -88,7 +88,7 @@ class PostureController:
 
 
 # Compiled, with the products in numpy's order (rows_times_matrix): each transform was a handful
-# of numpy calls and a 3x3 matrix built from a list, ~8 us a tick for the two, against ~1.5 us.
+# of numpy calls and a 3x3 matrix built from a list, 5.9 us a tick for the two, against 1.9 us.
 @njit(cache=True)
 def correction_rotation(roll: float, pitch: float) -> np.ndarray:
     """Ry(pitch) Rx(roll)."""

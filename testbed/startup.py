@@ -69,7 +69,8 @@ class CalibrationPoses:
             if t >= start:
                 # Python floats: numpy's arithmetic on the pairs, without its per-call cost
                 progress = minimum_jerk((t - start) / duration)
-                return roll_before + progress * (roll_after - roll_before), pitch_before + progress * (pitch_after - pitch_before)
+                return (roll_before + progress * (roll_after - roll_before),
+                        pitch_before + progress * (pitch_after - pitch_before))
         return 0.0, 0.0
 
     def apply(self, t: float, feet: np.ndarray) -> np.ndarray:
