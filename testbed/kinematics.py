@@ -12,7 +12,10 @@ from functools import cached_property
 from typing import Literal, NamedTuple
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from testbed.config import RobotConfig
 
@@ -87,6 +90,41 @@ def leg_transform(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
         [0.0, 0.0, 0.0, 1.0],
     ])
     return base_transform(geom, leg) @ t30
+
+
+@intrinsic
+def fused_multiply_add(typingctx, a, b, c):
+    """a * b + c with one rounding (compiled code only). OpenBLAS's kernels, which numpy's `@` and
+    `linalg.solve` run even on 3x3 matrices, accumulate their sums of products this way; compiled
+    code that does the same gives numpy's results bit for bit."""
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(double, [double] * 3), "llvm.fma.f64")
+        return builder.call(function, args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@njit(cache=True)
+def rows_times_matrix(points, matrix, out):
+    """out = points @ matrix for (n, 3) points and a 3x3 matrix, in numpy's order: row by row, each
+    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel). `out`
+    must be another array than `points`."""
+    for row in range(points.shape[0]):
+        for col in range(3):
+            total = points[row, 0] * matrix[0, col]
+            total = fused_multiply_add(points[row, 1], matrix[1, col], total)
+            out[row, col] = fused_multiply_add(points[row, 2], matrix[2, col], total)
+    return out
+
+
+@njit(cache=True)
+def matrix_times_vector(matrix, vector, out):
+    """out = matrix @ vector for a 3x3 matrix and a contiguous 3-vector, in numpy's order
+    (OpenBLAS's dgemv: the first two products summed first, then the third, fused)."""
+    for row in range(3):
+        first_two = fused_multiply_add(matrix[row, 0], vector[0], matrix[row, 1] * vector[1])
+        out[row] = fused_multiply_add(matrix[row, 2], vector[2], first_two)
+    return out
 
 
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
@@ -218,6 +256,15 @@ def inverse_kinematics_legs(geom: LegGeometry, targets: np.ndarray, fallback: np
     return q, status == REACHABLE
 
 
+def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A controller's inverse kinematics, knee up: (18,) joint angles for (6, 3) foot targets, a leg
+    out of reach keeping its `last` angles, and whether every leg reached its target. The angles
+    of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
+    the mask's `all`)."""
+    return _solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
+                               geom.lower, geom.upper, _elbow_sign("up"), last)
+
+
 def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
     """(18,) joint angles for (6, 3) foot targets; raises UnreachableTarget for the first bad leg."""
     q, reachable = inverse_kinematics_legs(geom, targets, elbow=elbow)
@@ -283,6 +330,12 @@ def _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, fallback
         if status[leg] == REACHABLE:
             q[3 * leg:3 * leg + 3] = out
     return q, status
+
+
+@njit(cache=True)
+def _solve_legs_or_last(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last):
+    q, status = _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last)
+    return q, np.all(status == REACHABLE)
 
 
 @njit(cache=True)

@@ -10,6 +10,8 @@ with the command and the body with them.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from testbed.config import GaitConfig
@@ -23,19 +25,22 @@ class TargetWalker:
         self.arrived = False
 
     def command(self, pose: tuple[float, float, float]) -> Twist:
+        # Python floats, and math's sin and cos (the C library's, as numpy's); numpy's hypot and
+        # arctan2 stay: on this CPU they are its own SIMD code, which can differ in the last bit.
         if self.arrived:
             return Twist()
         x, y, yaw = pose
-        offset = self.target - (x, y)
-        distance = float(np.hypot(*offset))
-        bearing = np.arctan2(offset[1], offset[0])
-        heading_error = float(np.arctan2(np.sin(bearing - yaw), np.cos(bearing - yaw)))
-        if distance < self.config.target_tolerance and np.cos(heading_error) <= 0.0:
+        target_x, target_y = self.target.tolist()
+        offset_x, offset_y = target_x - x, target_y - y
+        distance = float(np.hypot(offset_x, offset_y))
+        bearing = float(np.arctan2(offset_y, offset_x))
+        heading_error = float(np.arctan2(math.sin(bearing - yaw), math.cos(bearing - yaw)))
+        if distance < self.config.target_tolerance and math.cos(heading_error) <= 0.0:
             self.arrived = True
             return Twist()
-        turn = float(np.clip(self.config.heading_gain * heading_error,
-                             -self.config.cruise_turn_rate, self.config.cruise_turn_rate))
+        turn = min(max(self.config.heading_gain * heading_error, -self.config.cruise_turn_rate),
+                   self.config.cruise_turn_rate)
         # Walk only roughly towards the target.
-        alignment = max(0.0, np.cos(heading_error)) ** 2
+        alignment = max(0.0, math.cos(heading_error)) ** 2
         approach = min(1.0, max(distance, self.config.target_tolerance) / (2.0 * self.config.max_step_length))
         return Twist(vx=self.config.speed * alignment * approach, wz=turn)

@@ -6,12 +6,14 @@ target) -> gait generator (foot targets in the body frame) -> inverse kinematics
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.config import Config
 from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.kinematics import LegGeometry, foot_positions, inverse_kinematics_legs
+from testbed.kinematics import LegGeometry, foot_positions, joint_targets_or_last
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
 from testbed.posture import PostureController, PostureMeasurement, estimated_height, kinematic_height
@@ -53,15 +55,16 @@ class Pilot:
                                   config.gait.swing_height, adaptation, lead=lead)
         self.joint_targets = np.array(start_joints, dtype=float)
         self.encoder_positions = np.array(start_joints, dtype=float)
+        self.encoder_feet = foot_positions(geometry, self.encoder_positions)    # body frame, per encoder sample
         self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
-        self.heading = GyroHeading(config.gait.still_time)
+        self.heading = GyroHeading(config.gait.still_time, config.sensors.imu.body_from_sensor)
         self.startup = CalibrationPoses.from_gait(config.gait)
         self.startup_time = self.startup.end
         self.heading_reference = 0.0
-        self.body_from_imu = np.array(config.sensors.imu.body_from_sensor)
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
+        self.walking_gait = config.run.gait != "stand"
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
@@ -71,9 +74,10 @@ class Pilot:
         loop: a test-only switch that feeds ground truth, to tell the estimator's share of the
         posture error from the controller's."""
         estimates = self._absorb(samples)
-        twist = self._twist(t)
+        walking = self._walking(t)
+        twist = self._twist(t) if walking else Twist()
         gait_time = t - self.startup_time
-        if self._walking(t):
+        if walking:
             feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
             feet = self.gait.state.feet.copy()
@@ -93,7 +97,7 @@ class Pilot:
     def _measured_feet(self) -> np.ndarray:
         """The feet where the encoders put them, in the gait frame (the body frame without the
         posture controller)."""
-        feet = foot_positions(self.geometry, self.encoder_positions)
+        feet = self.encoder_feet
         return feet if self.posture is None else self.posture.to_gait_frame(feet)
 
     def _posture_measurement(self, attitude: tuple[float, float] | None) -> PostureMeasurement | None:
@@ -118,22 +122,22 @@ class Pilot:
                     estimates.append(estimate)
                     self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
-                self.heading.update(sample.t, self.body_from_imu @ sample.gyro)
+                self.heading.update(sample.t, sample.gyro)
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
+                self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(np.asarray(sample.positions), stance, self.heading.yaw)
         return estimates
 
     def _walking(self, t: float) -> bool:
         """Walking gaits start after the start-up: the still robot and its calibration poses."""
-        return self.config.run.gait != "stand" and t >= self.startup_time
+        return self.walking_gait and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
-        if not self._walking(t):
-            return Twist()
+        """The body twist at time t, once walking."""
         gait = self.config.gait
         ramp = min(1.0, (t - self.startup_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
         if self.walker is not None:
@@ -143,15 +147,17 @@ class Pilot:
             return Twist(command.vx * ramp, command.vy * ramp, command.wz * ramp)
         # Hold the commanded heading against the feet's twisting on the ground.
         self.heading_reference += gait.turn_rate * ramp * self.dt
-        error = np.arctan2(np.sin(self.heading_reference - self.heading.yaw), np.cos(self.heading_reference - self.heading.yaw))
-        correction = float(min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate))
+        drift = self.heading_reference - self.heading.yaw
+        # numpy's arctan2 (its own SIMD code on this CPU) can differ from the C library's in the last bit
+        error = float(np.arctan2(math.sin(drift), math.cos(drift)))
+        correction = min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate)
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
 
     def _solve_ik(self, feet: np.ndarray) -> None:
         """Joint targets for the foot targets; a leg whose target is out of reach keeps its last
         joint targets (the body gives way rather than the leg overreaching), and the tick counts."""
-        self.joint_targets, reachable = inverse_kinematics_legs(self.geometry, feet, self.joint_targets)
-        limited = not reachable.all()
+        self.joint_targets, reachable = joint_targets_or_last(self.geometry, feet, self.joint_targets)
+        limited = not reachable
         self.ik_limited_last = limited
         self.ik_limited_ticks += limited
 

@@ -15,16 +15,16 @@ on the ground, so the body turns by R and rises by d.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from testbed.config import PostureConfig
-from testbed.kinematics import LegGeometry, foot_positions
+from testbed.kinematics import LegGeometry, foot_positions, rows_times_matrix
 
 
-@dataclass(frozen=True)
-class PostureMeasurement:
+class PostureMeasurement(NamedTuple):
     roll: float                 # rad, body with respect to gravity
     pitch: float                # rad
     height: float | None        # m, body origin above the stance feet's ground plane, vertically
@@ -63,7 +63,6 @@ class PostureController:
         self.pitch = PiLoop(config.tilt_kp, config.tilt_ki, dt, limit)
         self.height = PiLoop(config.height_kp, config.height_ki, dt, config.max_height_correction)
         self.height_reference = height_reference
-        self._rotation_key, self._rotation_matrix = (0.0, 0.0), np.eye(3)
 
     def update(self, measurement: PostureMeasurement | None, hold: bool = False) -> None:
         """One control tick. `hold` (the last targets were out of reach) freezes the integrators."""
@@ -79,30 +78,43 @@ class PostureController:
         """(roll rad, pitch rad, height m) of the body relative to the gait frame."""
         return self.roll.output, self.pitch.output, self.height.output
 
-    def _rotation(self) -> np.ndarray:
-        """R of the current correction, rebuilt only when the angles changed (twice per tick)."""
-        key = (self.roll.output, self.pitch.output)
-        if key != self._rotation_key:
-            self._rotation_key, self._rotation_matrix = key, correction_rotation(*key)
-        return self._rotation_matrix
-
     def apply(self, feet: np.ndarray) -> np.ndarray:
         """Gait-frame foot targets (6, 3) -> body-frame targets."""
-        shifted = feet.copy()
-        shifted[:, 2] -= self.height.output
-        return shifted @ self._rotation()          # rows: R^T p
+        return tilted_targets(feet, self.roll.output, self.pitch.output, self.height.output)
 
     def to_gait_frame(self, feet: np.ndarray) -> np.ndarray:
         """Body-frame positions (6, 3) -> gait frame: the inverse of `apply`."""
-        gait = feet @ self._rotation().T
-        gait[:, 2] += self.height.output
-        return gait
+        return _untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output)
 
 
+# Compiled, with the products in numpy's order (rows_times_matrix): each transform was a handful
+# of numpy calls and a 3x3 matrix built from a list, 5.9 us a tick for the two, against 1.9 us.
+@njit(cache=True)
 def correction_rotation(roll: float, pitch: float) -> np.ndarray:
     """Ry(pitch) Rx(roll)."""
     cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    return np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+    rotation = np.empty((3, 3))
+    rotation[0, 0], rotation[0, 1], rotation[0, 2] = cp, sp * sr, sp * cr
+    rotation[1, 0], rotation[1, 1], rotation[1, 2] = 0.0, cr, -sr
+    rotation[2, 0], rotation[2, 1], rotation[2, 2] = -sp, cp * sr, cp * cr
+    return rotation
+
+
+@njit(cache=True)
+def tilted_targets(feet: np.ndarray, roll: float, pitch: float, height: float) -> np.ndarray:
+    """Foot targets (n, 3) for a body turned by R = Ry(pitch) Rx(roll) and raised by
+    d = (0, 0, height) over them: rows R^T (p - d), numpy's `(p - d) @ R` bit for bit."""
+    shifted = feet.copy()
+    shifted[:, 2] -= height
+    return rows_times_matrix(shifted, correction_rotation(roll, pitch), np.empty_like(shifted))
+
+
+@njit(cache=True)
+def _untilted_positions(feet, roll, pitch, height):
+    """The inverse of tilted_targets: rows R p + d, numpy's `p @ R.T + d`."""
+    positions = rows_times_matrix(feet, correction_rotation(roll, pitch).T, np.empty_like(feet))
+    positions[:, 2] += height
+    return positions
 
 
 def kinematic_height(geometry: LegGeometry, joints: np.ndarray, stance: np.ndarray, roll: float,

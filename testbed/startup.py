@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from testbed.posture import correction_rotation
+from testbed.posture import tilted_targets
 
 # (roll, pitch) in units of the tilt, visited in this order after the still start.
 POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
@@ -42,13 +42,13 @@ class CalibrationPoses:
                    gait.calibration_hold_time)
 
     @cached_property
-    def _moves(self) -> list[tuple[float, float, np.ndarray, np.ndarray]]:
+    def _moves(self) -> list[tuple[float, float, tuple[float, float], tuple[float, float]]]:
         """(start time, duration, from, to) of each move, from and to as (roll, pitch) in rad."""
         moves, t, previous = [], self.still, np.zeros(2)
         for pose in POSES:
             target = self.tilt * np.array(pose)
             duration = float(np.linalg.norm(target - previous)) / self.rate
-            moves.append((t, duration, previous, target))
+            moves.append((t, duration, tuple(previous.tolist()), tuple(target.tolist())))
             t += duration + self.hold
             previous = target
         return moves
@@ -65,10 +65,12 @@ class CalibrationPoses:
         """Commanded body (roll, pitch), rad, at time t."""
         if self.tilt == 0.0 or t <= self.still or t >= self.end:
             return 0.0, 0.0
-        for start, duration, before, after in reversed(self._moves):
+        for start, duration, (roll_before, pitch_before), (roll_after, pitch_after) in reversed(self._moves):
             if t >= start:
-                roll, pitch = before + minimum_jerk((t - start) / duration) * (after - before)
-                return float(roll), float(pitch)
+                # Python floats: numpy's arithmetic on the pairs, without its per-call cost
+                progress = minimum_jerk((t - start) / duration)
+                return (roll_before + progress * (roll_after - roll_before),
+                        pitch_before + progress * (pitch_after - pitch_before))
         return 0.0, 0.0
 
     def apply(self, t: float, feet: np.ndarray) -> np.ndarray:
@@ -76,4 +78,4 @@ class CalibrationPoses:
         roll, pitch = self.body_tilt(t)
         if roll == 0.0 and pitch == 0.0:
             return feet
-        return feet @ correction_rotation(roll, pitch)          # rows: R^T p, R = Ry(pitch) Rx(roll)
+        return tilted_targets(feet, roll, pitch, 0.0)          # rows: R^T p, R = Ry(pitch) Rx(roll)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from testbed import config
-from testbed.gait import GAIT_TABLE, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist
+from testbed.gait import GAIT_TABLE, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, _walk_plane
 from testbed.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -206,3 +206,29 @@ def test_a_swing_foot_that_meets_a_riser_stops_over_the_ground_and_rises_over_it
     assert height[landing] == pytest.approx(top * (1 - DT / STANCE_SETTLE_TIME), abs=1e-9)
     ellipse_end = NEUTRAL[0, 0] + 0.25 * speed * period + 1.0 * speed     # world, at t = 1 s
     assert riser + 0.005 < world_x[landing] < ellipse_end           # on the way down to it, over the step
+
+
+def test_the_compiled_walk_plane_is_numpys_least_squares_plane_bit_for_bit():
+    """The normal equations and their solve, compiled, give what numpy's `@` and `linalg.solve`
+    gave the gait (the same bits: runs stay identical); the level stance below three feet."""
+    rng = np.random.default_rng(0)
+    for _ in range(3000):
+        feet = NEUTRAL + rng.normal(0.0, 0.02, NEUTRAL.shape)
+        stance = rng.random(6) < 0.7
+        plane = _walk_plane(feet, stance, -0.08)
+        if stance.sum() < 3:
+            assert plane == (-0.08, 0.0, 0.0)
+            continue
+        planted = feet[stance]
+        design = np.ones((len(planted), 3))
+        design[:, 1:] = planted[:, :2]
+        # (numpy's BLAS sums a strided vector, as here, in another order than a contiguous one)
+        expected = np.linalg.solve(design.T @ design, design.T @ planted[:, 2])
+        assert np.array(plane).tobytes() == expected.tobytes()
+
+
+def test_phase_rounds_as_numpy_did():
+    gait = GaitGenerator("ripple", NEUTRAL, 1.2, 0.03)
+    for t in np.concatenate([np.arange(-2000, 5000) * DT, np.random.default_rng(1).uniform(-5.0, 500.0, 5000)]):
+        expected = np.mod(np.round(t / 1.2 - gait.swing_start + gait.duty, 9), 1.0)
+        assert gait.phase(t).tobytes() == expected.tobytes()

@@ -7,7 +7,8 @@ import pytest
 from testbed import config
 from testbed.kinematics import (LegGeometry, UnreachableTarget, foot_jacobian, foot_positions,
                                 inverse_kinematics, inverse_kinematics_all, inverse_kinematics_legs,
-                                leg_transform, nominal_stance, world_feet)
+                                joint_targets_or_last, leg_transform, matrix_times_vector, nominal_stance,
+                                rows_times_matrix, world_feet)
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset
 from testbed.simulation import load_robot
 
@@ -147,6 +148,27 @@ def test_all_legs_at_once_give_the_scalar_joints_bit_for_bit():
             local = feet[leg] - GEOM.base_positions[leg]
             seen["second branch"] += abs(np.cos(angles[0] - GEOM.base_angle[leg] - np.arctan2(local[1], local[0])) + 1) < 1e-6
     assert min(seen.values()) >= 20, seen
+
+
+def test_the_controllers_inverse_kinematics_is_the_batched_one():
+    rng = np.random.default_rng(5)
+    previous = rng.normal(size=18)
+    for feet, elbow in ik_cases(rng, 300):
+        if elbow != "up":
+            continue
+        q, all_reached = joint_targets_or_last(GEOM, feet, previous)
+        expected, reachable = inverse_kinematics_legs(GEOM, feet, previous)
+        np.testing.assert_array_equal(q, expected)
+        assert all_reached == reachable.all()
+
+
+def test_the_compiled_products_are_numpys_bit_for_bit():
+    rng = np.random.default_rng(6)
+    for _ in range(2000):
+        points, matrix, vector = rng.normal(0.0, 0.1, (6, 3)), rng.normal(0.0, 1.0, (3, 3)), rng.normal(0.0, 1.0, 3)
+        assert rows_times_matrix(points, matrix, np.empty((6, 3))).tobytes() == (points @ matrix).tobytes()
+        assert rows_times_matrix(points, matrix.T, np.empty((6, 3))).tobytes() == (points @ matrix.T).tobytes()
+        assert matrix_times_vector(matrix, vector, np.empty(3)).tobytes() == (matrix @ vector).tobytes()
 
 
 def test_inverse_kinematics_agrees_with_an_independent_numpy_version():

@@ -62,6 +62,25 @@ def test_correction_turns_the_body_and_the_inverse_is_exact():
     assert np.all(np.sign(lowered[NEUTRAL[:, 1] > 0.01]) == -1)
 
 
+def test_the_compiled_correction_is_numpys_bit_for_bit():
+    """The transforms as numpy computed them before they were compiled (the same runs, bit for bit)."""
+    controller = PostureController(CFG.posture, DT, CFG.robot.stance_height)
+    rng = np.random.default_rng(0)
+    for _ in range(1000):
+        roll, pitch, height = rng.normal(0.0, 0.1, 3)
+        controller.roll.output, controller.pitch.output, controller.height.output = roll, pitch, height
+        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        rotation = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+        assert correction_rotation(roll, pitch).tobytes() == rotation.tobytes()
+        feet = NEUTRAL + rng.normal(0.0, 0.02, NEUTRAL.shape)
+        shifted = feet.copy()
+        shifted[:, 2] -= height
+        assert controller.apply(feet).tobytes() == (shifted @ rotation).tobytes()
+        gait = feet @ rotation.T
+        gait[:, 2] += height
+        assert controller.to_gait_frame(feet).tobytes() == gait.tobytes()
+
+
 def test_kinematic_height_of_a_level_stance_and_of_a_tilted_body():
     joints = inverse_kinematics_all(GEOM, NEUTRAL)
     stance = np.ones(6, bool)
