@@ -20,7 +20,7 @@ from testbed.metrics import RunMetrics
 from testbed.pilot import Pilot
 from testbed.recording import NullRecorder, Recorder, Tick
 from testbed.simulation import FALL_TILT, Simulation
-from testbed.stability import debounced_support
+from testbed.stability import stance_support
 from testbed.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
@@ -51,20 +51,24 @@ class SupportTracker:
         self.terrain = terrain
         self.foot_radius = foot_radius
         self.last_touch = np.full(6, -np.inf)
+        self._not_resting = np.zeros(6, dtype=bool)
 
-    def polygon_and_margin(self, truth, stance: np.ndarray) -> tuple[np.ndarray, float]:
-        """The support polygon and the centre of mass's stability margin in it."""
-        late = stance & ~truth.foot_contact & (truth.t - self.last_touch > CONTACT_DEBOUNCE)
-        resting = np.zeros(6, dtype=bool)
-        if late.any():
-            gap = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius
-            resting[late] = gap <= GROUND_TOLERANCE
-        return debounced_support(self.last_touch, truth.foot_contact, truth.t, truth.foot_positions,
-                                 truth.com_position, CONTACT_DEBOUNCE, resting)
+    def polygon_and_margin(self, truth, swinging: np.ndarray) -> tuple[np.ndarray, float]:
+        """The support polygon and the centre of mass's stability margin in it (one compiled call
+        unless a stance foot is late: then the terrain tells whether it rests on the ground)."""
+        args = (self.last_touch, truth.foot_contact, swinging, truth.t, truth.foot_positions, truth.com_position,
+                CONTACT_DEBOUNCE)
+        polygon, margin, late_bits = stance_support(*args, self._not_resting)
+        if late_bits:
+            late = (late_bits >> np.arange(6)) & 1 == 1
+            resting = np.zeros(6, dtype=bool)
+            resting[late] = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius <= GROUND_TOLERANCE
+            polygon, margin, _ = stance_support(*args, resting)
+        return polygon, margin
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
-    polygon, margin = support.polygon_and_margin(truth, ~command.swinging)
+    polygon, margin = support.polygon_and_margin(truth, command.swinging)
     return Tick(truth=truth, truth_quaternion=sim.body_quaternion(), contacts=sim.contacts(), support_polygon=polygon,
                 stability_margin=margin, samples=samples, estimates=estimates, command=command)
 

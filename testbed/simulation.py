@@ -270,8 +270,9 @@ class Simulation:
         return self._state.transform.copy()
 
     def body_quaternion(self) -> np.ndarray:
-        """world_from_body as (x, y, z, w)."""
-        return self._state.quaternion.copy()
+        """world_from_body as (x, y, z, w): new at each step and shared, like the truth's arrays
+        (not to be modified)."""
+        return self._state.quaternion
 
     def truth(self) -> Truth:
         state, contacts = self._state, self._contacts
