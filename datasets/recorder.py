@@ -23,6 +23,7 @@ import platform
 import time
 from datetime import datetime, timezone
 from functools import cache
+from itertools import count
 from importlib import metadata as package_metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -177,41 +178,69 @@ class McapRecorder:
     # --- internals ----------------------------------------------------------------------------
 
     def _write_pending(self, flush: bool) -> None:
-        """Encode the ticks recorded since the last write (in one loop, whose code stays in the
-        processor's caches, rather than between the run loop's other stages) and write them."""
+        """Encode the ticks recorded since the last write and write them. A Ctrl-C while encoding
+        leaves them pending for `finish`; from the moment they are handed over to the writer it
+        waits until they are written (the encoding holds numpy calls long enough for a signal to
+        come due right after it)."""
+        ticks = self._pending_ticks
+        messages = self._messages(ticks)
+        with sigint_deferred():
+            self._samples += sum(len(tick.samples) for tick in ticks)
+            self._encoded_ticks += len(ticks)
+            ticks.clear()
+            self._dataset.add_many(messages, flush)
+
+    def _messages(self, ticks: list[Tick]) -> list[tuple[int, int, bytes, int]]:
+        """(channel, log ns, data, sequence) of the ticks, tick by tick: the samples, the estimates,
+        the pose, the feet and, every `truth_every` ticks, the heavy truth. Each topic's messages
+        are encoded in one batch (the encoder vectorises it), then laid out in that order."""
+        channels, encoder = self._channels, self._encoder
+        samples = [sample for tick in ticks for sample in tick.samples]
+        estimates = [estimate for tick in ticks for estimate in tick.estimates]
+        truths = [tick.truth for tick in ticks]
+        truth_ns = codec.to_ns_many([truth.t for truth in truths])
+        sample_messages = [(channels[topic], t_ns, data, sequence) for (topic, data), t_ns, sequence in zip(
+            encoder.samples(samples), codec.to_ns_many([sample.t for sample in samples]), count(self._samples))]
+        estimate_channel, pose_channel, feet_channel = (channels[topic.name] for topic in
+                                                        (schemas.ESTIMATE, schemas.TRUTH_POSE, schemas.TRUTH_FEET))
+        estimate_messages = [(estimate_channel, t_ns, data, 0) for data, t_ns in zip(
+            encoder.estimates(estimates), codec.to_ns_many([estimate.t for estimate in estimates]))]
+        poses = [(pose_channel, t_ns, encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0)
+                 for t_ns, truth, tick in zip(truth_ns, truths, ticks)]
+        feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(truths))]
+        first = self._encoded_ticks
+        heavy = [index for index in range(len(ticks)) if (first + index) % self._every == 0]
+        heavy_messages = self._heavy_truth([ticks[index] for index in heavy], [truth_ns[index] for index in heavy])
         messages: list[tuple[int, int, bytes, int]] = []
-        for tick in self._pending_ticks:
-            self._encode(tick, messages)
-        self._pending_ticks.clear()
-        self._dataset.add_many(messages, flush)
+        next_sample = next_estimate = 0
+        for index, tick in enumerate(ticks):
+            last_sample, last_estimate = next_sample + len(tick.samples), next_estimate + len(tick.estimates)
+            messages += sample_messages[next_sample:last_sample]
+            messages += estimate_messages[next_estimate:last_estimate]
+            messages += (poses[index], feet[index])
+            if (first + index) % self._every == 0:
+                messages += next(heavy_messages)
+            next_sample, next_estimate = last_sample, last_estimate
+        return messages
 
-    def _encode(self, tick: Tick, messages: list[tuple[int, int, bytes, int]]) -> None:
-        truth, channels, encoder = tick.truth, self._channels, self._encoder
-        t_ns = codec.to_ns(truth.t)
-        for sample in tick.samples:
-            topic, data = encoder.sample(sample)
-            messages.append((channels[topic], codec.to_ns(sample.t), data, self._samples))
-            self._samples += 1
-        estimate_channel = channels[schemas.ESTIMATE.name]
-        for estimate in tick.estimates:
-            messages.append((estimate_channel, codec.to_ns(estimate.t), encoder.estimate(estimate), 0))
-        messages.append((channels[schemas.TRUTH_POSE.name], t_ns,
-                         encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        messages.append((channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
-        if self._encoded_ticks % self._every == 0:
-            self._encode_heavy_truth(tick, t_ns, messages)
-        self._encoded_ticks += 1
-
-    def _encode_heavy_truth(self, tick: Tick, t_ns: int, messages: list[tuple[int, int, bytes, int]]) -> None:
-        truth, channels, encoder = tick.truth, self._channels, self._encoder
-        messages.append((channels[schemas.TF.name], t_ns,
-                         encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        messages.append((channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0))
-        messages.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0))
-        messages.append((channels[schemas.TRUTH_SUPPORT.name], t_ns,
-                         encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin),
-                         0))
-        messages.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t), encoder.command(tick.command), 0))
+    def _heavy_truth(self, ticks: list[Tick], truth_ns: list[int]):
+        """Per tick, the (channel, log ns, data, sequence) of its transform, state, contacts, support
+        and command."""
+        channels, encoder = self._channels, self._encoder
+        truths = [tick.truth for tick in ticks]
+        commands = [tick.command for tick in ticks]
+        transforms = [encoder.transform(t_ns, truth.body_position, tick.truth_quaternion)
+                      for t_ns, truth, tick in zip(truth_ns, truths, ticks)]
+        supports = [encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
+                    for truth, tick in zip(truths, ticks)]
+        columns = zip(transforms, encoder.truth_states(truths),
+                      encoder.contacts_of([truth.t for truth in truths], [tick.contacts for tick in ticks]), supports,
+                      encoder.commands(commands), truth_ns, codec.to_ns_many([command.t for command in commands]))
+        tf, state, contacts, support, command = (channels[topic.name] for topic in (
+            schemas.TF, schemas.TRUTH_STATE, schemas.TRUTH_CONTACTS, schemas.TRUTH_SUPPORT, schemas.COMMAND))
+        for transform, state_data, contacts_data, support_data, command_data, t_ns, command_ns in columns:
+            yield ((tf, t_ns, transform, 0), (state, t_ns, state_data, 0), (contacts, t_ns, contacts_data, 0),
+                   (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:
