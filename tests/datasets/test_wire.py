@@ -125,3 +125,9 @@ def test_arrays_of_any_layout_are_written_row_major():
 def test_varints(value):
     from google.protobuf.internal.encoder import _VarintBytes
     assert wire.varint(value) == _VarintBytes(value)
+
+
+def test_nanoseconds_of_many_times_are_those_of_each():
+    rng = np.random.default_rng(2)
+    times = np.concatenate([rng.uniform(0, 600, 2000), np.arange(0, 10, 0.001), (np.arange(100) + 0.5) / 1e9])
+    assert codec.to_ns_many(times.tolist()) == [codec.to_ns(t) for t in times.tolist()]
