@@ -57,6 +57,7 @@ def test_state_read_out_equals_dart_getters_through_a_walk(contact):
             targets = sim.standing_targets + rng.normal(0.0, 0.1, 18)
         sim.step(targets)
         state = sim._state
+        assert state.t == sim.time == sim.world.getTime()
         assert_same_bits(state.transform, sim.body.getWorldTransform().matrix())
         assert_same_bits(free_joint_twist(state.transform[:3, :3], sim.robot.getVelocities()),
                          sim.body.getSpatialVelocity())
