@@ -26,7 +26,7 @@ from functools import cache
 from itertools import count
 from importlib import metadata as package_metadata
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -126,9 +126,8 @@ class McapRecorder:
         self._dataset: DatasetWriter | None = None
         self._encoder = codec.Encoder()
         self._channels: dict[str, int] = {}
-        self._pending_ticks: list[Tick] = []     # recorded, not yet encoded and written
+        self._pending: list[_Step] = []          # recorded, not yet encoded and written
         self._ticks = 0
-        self._encoded_ticks = 0
         self._samples = 0
         self._every = 1
         self._next_flush_ns = 0
@@ -154,7 +153,10 @@ class McapRecorder:
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        self._pending_ticks.append(tick)
+        truth = tick.truth
+        self._pending.append(_Step(truth.t, truth.body_position, tick.truth_quaternion, truth.foot_positions,
+                                   truth.foot_contact, tick.samples, tick.estimates,
+                                   tick if self._ticks % self._every == 0 else None))
         self._ticks += 1
         self._last_t = tick.truth.t
         t_ns = codec.to_ns(tick.truth.t)
@@ -178,47 +180,44 @@ class McapRecorder:
     # --- internals ----------------------------------------------------------------------------
 
     def _write_pending(self, flush: bool) -> None:
-        """Encode the ticks recorded since the last write and write them. A Ctrl-C while encoding
-        leaves them pending for `finish`; from the moment they are handed over to the writer it
-        waits until they are written (the encoding holds numpy calls long enough for a signal to
-        come due right after it)."""
-        ticks = self._pending_ticks
-        messages = self._messages(ticks)
+        """Encode what was recorded since the last write and write it. A Ctrl-C while encoding
+        leaves it pending for `finish`; from the moment it is handed over to the writer it waits
+        until it is written (the encoding holds numpy calls long enough for a signal to come due
+        right after it)."""
+        steps = self._pending
+        messages = self._messages(steps)
         with sigint_deferred():
-            self._samples += sum(len(tick.samples) for tick in ticks)
-            self._encoded_ticks += len(ticks)
-            ticks.clear()
+            self._samples += sum(len(step.samples) for step in steps)
+            steps.clear()
             self._dataset.add_many(messages, flush)
 
-    def _messages(self, ticks: list[Tick]) -> list[tuple[int, int, bytes, int]]:
-        """(channel, log ns, data, sequence) of the ticks, tick by tick: the samples, the estimates,
-        the pose, the feet and, every `truth_every` ticks, the heavy truth. Each topic's messages
-        are encoded in one batch (the encoder vectorises it), then laid out in that order."""
+    def _messages(self, steps: list[_Step]) -> list[tuple[int, int, bytes, int]]:
+        """(channel, log ns, data, sequence) of the steps, step by step: the samples, the estimates,
+        the pose, the feet and, where the step keeps its tick, the heavy truth. Each topic's
+        messages are encoded in one batch (the encoder vectorises it), then laid out in that order."""
         channels, encoder = self._channels, self._encoder
-        samples = [sample for tick in ticks for sample in tick.samples]
-        estimates = [estimate for tick in ticks for estimate in tick.estimates]
-        truths = [tick.truth for tick in ticks]
-        truth_ns = codec.to_ns_many([truth.t for truth in truths])
+        samples = [sample for step in steps for sample in step.samples]
+        estimates = [estimate for step in steps for estimate in step.estimates]
+        truth_ns = codec.to_ns_many([step.t for step in steps])
         sample_messages = [(channels[topic], t_ns, data, sequence) for (topic, data), t_ns, sequence in zip(
             encoder.samples(samples), codec.to_ns_many([sample.t for sample in samples]), count(self._samples))]
         estimate_channel, pose_channel, feet_channel = (channels[topic.name] for topic in
                                                         (schemas.ESTIMATE, schemas.TRUTH_POSE, schemas.TRUTH_FEET))
         estimate_messages = [(estimate_channel, t_ns, data, 0) for data, t_ns in zip(
             encoder.estimates(estimates), codec.to_ns_many([estimate.t for estimate in estimates]))]
-        poses = [(pose_channel, t_ns, encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0)
-                 for t_ns, truth, tick in zip(truth_ns, truths, ticks)]
-        feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(truths))]
-        first = self._encoded_ticks
-        heavy = [index for index in range(len(ticks)) if (first + index) % self._every == 0]
-        heavy_messages = self._heavy_truth([ticks[index] for index in heavy], [truth_ns[index] for index in heavy])
+        poses = [(pose_channel, t_ns, encoder.pose(t_ns, step.body_position, step.quaternion), 0)
+                 for t_ns, step in zip(truth_ns, steps)]
+        feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(steps))]
+        heavy = [(step.tick, t_ns) for step, t_ns in zip(steps, truth_ns) if step.tick is not None]
+        heavy_messages = self._heavy_truth([tick for tick, _ in heavy], [t_ns for _, t_ns in heavy])
         messages: list[tuple[int, int, bytes, int]] = []
         next_sample = next_estimate = 0
-        for index, tick in enumerate(ticks):
-            last_sample, last_estimate = next_sample + len(tick.samples), next_estimate + len(tick.estimates)
+        for index, step in enumerate(steps):
+            last_sample, last_estimate = next_sample + len(step.samples), next_estimate + len(step.estimates)
             messages += sample_messages[next_sample:last_sample]
             messages += estimate_messages[next_estimate:last_estimate]
             messages += (poses[index], feet[index])
-            if (first + index) % self._every == 0:
+            if step.tick is not None:
                 messages += next(heavy_messages)
             next_sample, next_estimate = last_sample, last_estimate
         return messages
@@ -241,6 +240,20 @@ class McapRecorder:
         for transform, state_data, contacts_data, support_data, command_data, t_ns, command_ns in columns:
             yield ((tf, t_ns, transform, 0), (state, t_ns, state_data, 0), (contacts, t_ns, contacts_data, 0),
                    (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
+
+
+class _Step(NamedTuple):
+    """What the messages of every tick need, kept until the next write in place of the tick, which
+    is kept only every `truth_every` ticks, for its heavy truth: the other ticks' objects are freed
+    at once, while still in the processor's caches (freeing 500 ticks at each write cost ~6 us a tick)."""
+    t: float
+    body_position: np.ndarray
+    quaternion: np.ndarray
+    foot_positions: np.ndarray
+    foot_contact: np.ndarray
+    samples: list
+    estimates: list
+    tick: Tick | None
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:
