@@ -10,6 +10,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from operator import attrgetter
 
 import numpy as np
@@ -79,7 +80,41 @@ _CONTACT_ARRAYS = attrgetter(*(name for name, _, _ in schemas.MESSAGES["Contacts
 
 def _timestamp(t_ns: int) -> bytes:
     seconds, nanos = divmod(t_ns, NS_PER_S)
-    return wire.length_delimited(_TIMESTAMP, wire.unsigned(_SECONDS, seconds) + wire.unsigned(_NANOS, nanos))
+    return wire.length_delimited(_TIMESTAMP, wire.unsigned(_SECONDS, seconds) + _nanos(nanos))
+
+
+@lru_cache(maxsize=4096)
+def _nanos(nanos: int) -> bytes:
+    """The Timestamp's nanos field: recurring values (whole milliseconds at the physics rate), and
+    its varint of 3 to 5 bytes costs a Python loop."""
+    return wire.unsigned(_NANOS, nanos)
+
+
+# A foxglove.Vector3 and a foxglove.Quaternion, each as a length-delimited field, with every
+# component written: one structured-array row, the fields' keys and lengths filled in.
+_COMPONENT = np.dtype([("key", np.uint8), ("value", "<f8")])
+_PAIR = np.dtype([("first", np.uint8, (2,)), ("vector", _COMPONENT, (3,)), ("second", np.uint8, (2,)),
+                  ("quaternion", _COMPONENT, (4,))])
+
+
+def _vector_and_quaternion(first_key: bytes, vectors: np.ndarray, second_key: bytes,
+                           quaternions: np.ndarray) -> list[bytes]:
+    """Per row of `vectors` (N, 3) and `quaternions` (N, 4): the field `first_key` holding the
+    foxglove.Vector3, then `second_key` holding the foxglove.Quaternion. Vectorised over the rows
+    without a zero component (all fields written), one by one for the others."""
+    rows = np.empty(len(vectors), _PAIR)
+    rows["first"] = (first_key[0], 3 * _COMPONENT.itemsize)
+    rows["vector"]["key"] = (_X, _Y, _Z)
+    rows["vector"]["value"] = vectors
+    rows["second"] = (second_key[0], 4 * _COMPONENT.itemsize)
+    rows["quaternion"]["key"] = (_X, _Y, _Z, _W)
+    rows["quaternion"]["value"] = quaternions
+    data, size = rows.tobytes(), _PAIR.itemsize
+    complete = (vectors != 0.0).all(axis=1) & (quaternions != 0.0).all(axis=1)
+    return [data[index * size:(index + 1) * size] if whole else
+            (wire.length_delimited(first_key, _vector3(vector))
+             + wire.length_delimited(second_key, _quaternion(quaternion)))
+            for index, (whole, vector, quaternion) in enumerate(zip(complete.tolist(), vectors, quaternions))]
 
 
 def _vector3(values: np.ndarray) -> bytes:
@@ -97,7 +132,8 @@ def _quaternion(values: np.ndarray) -> bytes:
 
 
 def _each_component(components: tuple[float, ...]) -> bytes:
-    return b"".join([wire.double(wire.varint(field_key), value) for field_key, value in zip((_X, _Y, _Z, _W), components)])
+    return b"".join([wire.double(wire.varint(field_key), value)
+                     for field_key, value in zip((_X, _Y, _Z, _W), components)])
 
 
 class Encoder:
@@ -142,9 +178,14 @@ class Encoder:
         return self._estimate.encode_fields_of_many(estimates)
 
     def pose(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        pose = (wire.length_delimited(_POSITION, _vector3(position))
-                + wire.length_delimited(_ORIENTATION, _quaternion(quaternion)))
-        return _timestamp(t_ns) + _POSE_FRAME + wire.length_delimited(_POSE, pose)
+        return self.poses([t_ns], [position], [quaternion])[0]
+
+    def poses(self, times_ns: Sequence[int], positions: Sequence[np.ndarray],
+              quaternions: Sequence[np.ndarray]) -> list[bytes]:
+        bodies = _vector_and_quaternion(_POSITION, np.array(positions, dtype=float).reshape(-1, 3), _ORIENTATION,
+                                        np.array(quaternions, dtype=float).reshape(-1, 4))
+        return [_timestamp(t_ns) + _POSE_FRAME + wire.length_delimited(_POSE, body)
+                for t_ns, body in zip(times_ns, bodies)]
 
     def feet(self, truth: Truth) -> bytes:
         return self._feet.encode_fields_of(truth)
@@ -153,8 +194,13 @@ class Encoder:
         return self._feet.encode_fields_of_many(truths)
 
     def transform(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        return (_timestamp(t_ns) + _TRANSFORM_FRAMES + wire.length_delimited(_TRANSLATION, _vector3(position))
-                + wire.length_delimited(_ROTATION, _quaternion(quaternion)))
+        return self.transforms([t_ns], [position], [quaternion])[0]
+
+    def transforms(self, times_ns: Sequence[int], positions: Sequence[np.ndarray],
+                   quaternions: Sequence[np.ndarray]) -> list[bytes]:
+        parts = _vector_and_quaternion(_TRANSLATION, np.array(positions, dtype=float).reshape(-1, 3), _ROTATION,
+                                       np.array(quaternions, dtype=float).reshape(-1, 4))
+        return [_timestamp(t_ns) + _TRANSFORM_FRAMES + part for t_ns, part in zip(times_ns, parts)]
 
     def truth_state(self, truth: Truth) -> bytes:
         return self._state.encode_fields_of(truth)

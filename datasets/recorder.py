@@ -205,8 +205,8 @@ class McapRecorder:
                                                         (schemas.ESTIMATE, schemas.TRUTH_POSE, schemas.TRUTH_FEET))
         estimate_messages = [(estimate_channel, t_ns, data, 0) for data, t_ns in zip(
             encoder.estimates(estimates), codec.to_ns_many([estimate.t for estimate in estimates]))]
-        poses = [(pose_channel, t_ns, encoder.pose(t_ns, step.body_position, step.quaternion), 0)
-                 for t_ns, step in zip(truth_ns, steps)]
+        poses = [(pose_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.poses(
+            truth_ns, [step.body_position for step in steps], [step.quaternion for step in steps]))]
         feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(steps))]
         heavy = [(step.tick, t_ns) for step, t_ns in zip(steps, truth_ns) if step.tick is not None]
         heavy_messages = self._heavy_truth([tick for tick, _ in heavy], [t_ns for _, t_ns in heavy])
@@ -228,8 +228,8 @@ class McapRecorder:
         channels, encoder = self._channels, self._encoder
         truths = [tick.truth for tick in ticks]
         commands = [tick.command for tick in ticks]
-        transforms = [encoder.transform(t_ns, truth.body_position, tick.truth_quaternion)
-                      for t_ns, truth, tick in zip(truth_ns, truths, ticks)]
+        transforms = encoder.transforms(truth_ns, [truth.body_position for truth in truths],
+                                        [tick.truth_quaternion for tick in ticks])
         supports = [encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
                     for truth, tick in zip(truths, ticks)]
         columns = zip(transforms, encoder.truth_states(truths),

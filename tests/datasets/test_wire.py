@@ -131,3 +131,15 @@ def test_nanoseconds_of_many_times_are_those_of_each():
     rng = np.random.default_rng(2)
     times = np.concatenate([rng.uniform(0, 600, 2000), np.arange(0, 10, 0.001), (np.arange(100) + 0.5) / 1e9])
     assert codec.to_ns_many(times.tolist()) == [codec.to_ns(t) for t in times.tolist()]
+
+
+def test_poses_and_transforms_in_batches_are_those_one_at_a_time():
+    rng = np.random.default_rng(5)
+    encoder = codec.Encoder()
+    times = sorted(rng.integers(0, 10**11, 300).tolist())
+    positions, quaternions = floats(rng, (300, 3)), floats(rng, (300, 4))
+    assert encoder.poses(times, positions, quaternions) == [
+        foxglove_pose(t, p, q) for t, p, q in zip(times, positions, quaternions)]
+    assert encoder.transforms(times, positions, quaternions) == [
+        foxglove_transform(t, p, q) for t, p, q in zip(times, positions, quaternions)]
+    assert encoder.poses([], [], []) == encoder.transforms([], [], []) == []
