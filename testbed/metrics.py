@@ -59,7 +59,8 @@ class RunMetrics:
             self.start_xy = truth.body_position[:2].copy()
             self.start_heading = float(np.arctan2(truth.body_rotation[1, 0], truth.body_rotation[0, 0]))
         if t >= self.window_start:
-            self._normal_sum += float(tick.contacts.normal_forces.sum())
+            # Six numbers: Python's sum adds them in numpy's order, for a fifth of the cost.
+            self._normal_sum += sum(tick.contacts.normal_forces.tolist())
             self._normal_count += 1
         if t >= SETTLE_TIME and tick.stability_margin < self.min_margin:
             self.min_margin = tick.stability_margin
