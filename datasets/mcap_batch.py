@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import struct
 from collections import Counter
+from itertools import islice
+from operator import itemgetter
 
 from mcap._chunk_builder import ChunkBuilder
 from mcap.opcode import Opcode
@@ -51,14 +53,14 @@ class BatchWriter(Writer):
 
     def _count(self, messages: list[tuple[int, int, bytes, int]]) -> None:
         statistics = self._Writer__statistics
-        times = [message[1] for message in messages]
-        first, last = min(times), max(times)
+        log_times = list(map(itemgetter(1), messages))
+        first, last = min(log_times), max(log_times)
         if statistics.message_count:
             first = min(first, statistics.message_start_time)
         statistics.message_start_time = first
         statistics.message_end_time = max(last, statistics.message_end_time)
         statistics.message_count += len(messages)
-        for channel, count in Counter(message[0] for message in messages).items():
+        for channel, count in Counter(map(itemgetter(0), messages)).items():
             statistics.channel_message_counts[channel] += count
 
 
@@ -70,27 +72,30 @@ class BatchChunkBuilder(ChunkBuilder):
 
     def add_records(self, messages: list[tuple[int, int, bytes, int]], start: int, size_limit: int) -> int:
         """Add messages[start:], published at their log times, until the chunk grows past
-        `size_limit` bytes; returns the index after the last message added."""
+        `size_limit` bytes; returns the index after the last message added. The records go to the
+        chunk's buffer in one write."""
         buffer, indices = self.record_writer._buffer, self.message_indices
         offset = buffer.tell()
-        if self.num_messages == 0:
-            self.message_start_time = messages[start][1]
-        first, last = self.message_start_time, self.message_end_time
-        pack, opcode, end = MESSAGE_HEADER.pack, Opcode.MESSAGE, start
-        for channel, log_time, data, sequence in messages[start:]:
-            first, last = min(first, log_time), max(last, log_time)
+        pack, opcode, header_size = MESSAGE_HEADER.pack, Opcode.MESSAGE, MESSAGE_HEADER.size
+        records: list[bytes] = []
+        end = start
+        for channel, log_time, data, sequence in islice(messages, start, None):
             index = indices.get(channel)
             if index is None:
                 index = indices[channel] = PackedMessageIndex(channel_id=channel, records=[])
             index.records.append((log_time, offset))
-            buffer.write(pack(opcode, MESSAGE_FIELDS_SIZE + len(data), channel, sequence, log_time, log_time))
-            buffer.write(data)
-            offset += MESSAGE_HEADER.size + len(data)
+            records += (pack(opcode, MESSAGE_FIELDS_SIZE + len(data), channel, sequence, log_time, log_time), data)
+            offset += header_size + len(data)
             end += 1
             if offset > size_limit:
                 break
-        self.num_messages += end - start
+        buffer.write(b"".join(records))
+        added = list(map(itemgetter(1), islice(messages, start, end)))
+        first, last = min(added), max(added)
+        if self.num_messages:
+            first, last = min(first, self.message_start_time), max(last, self.message_end_time)
         self.message_start_time, self.message_end_time = first, last
+        self.num_messages += end - start
         return end
 
     def _add(self, channel: int, log_time: int, data: bytes, sequence: int, publish_time: int) -> None:

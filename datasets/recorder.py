@@ -23,9 +23,10 @@ import platform
 import time
 from datetime import datetime, timezone
 from functools import cache
+from itertools import count
 from importlib import metadata as package_metadata
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -125,9 +126,8 @@ class McapRecorder:
         self._dataset: DatasetWriter | None = None
         self._encoder = codec.Encoder()
         self._channels: dict[str, int] = {}
-        self._pending_ticks: list[Tick] = []     # recorded, not yet encoded and written
+        self._pending: list[_Step] = []          # recorded, not yet encoded and written
         self._ticks = 0
-        self._encoded_ticks = 0
         self._samples = 0
         self._every = 1
         self._next_flush_ns = 0
@@ -153,7 +153,10 @@ class McapRecorder:
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        self._pending_ticks.append(tick)
+        truth = tick.truth
+        self._pending.append(_Step(truth.t, truth.body_position, tick.truth_quaternion, truth.foot_positions,
+                                   truth.foot_contact, tick.samples, tick.estimates,
+                                   tick if self._ticks % self._every == 0 else None))
         self._ticks += 1
         self._last_t = tick.truth.t
         t_ns = codec.to_ns(tick.truth.t)
@@ -177,41 +180,80 @@ class McapRecorder:
     # --- internals ----------------------------------------------------------------------------
 
     def _write_pending(self, flush: bool) -> None:
-        """Encode the ticks recorded since the last write (in one loop, whose code stays in the
-        processor's caches, rather than between the run loop's other stages) and write them."""
+        """Encode what was recorded since the last write and write it. A Ctrl-C while encoding
+        leaves it pending for `finish`; from the moment it is handed over to the writer it waits
+        until it is written (the encoding holds numpy calls long enough for a signal to come due
+        right after it)."""
+        steps = self._pending
+        messages = self._messages(steps)
+        with sigint_deferred():
+            self._samples += sum(len(step.samples) for step in steps)
+            steps.clear()
+            self._dataset.add_many(messages, flush)
+
+    def _messages(self, steps: list[_Step]) -> list[tuple[int, int, bytes, int]]:
+        """(channel, log ns, data, sequence) of the steps, step by step: the samples, the estimates,
+        the pose, the feet and, where the step keeps its tick, the heavy truth. Each topic's
+        messages are encoded in one batch (the encoder vectorises it), then laid out in that order."""
+        channels, encoder = self._channels, self._encoder
+        samples = [sample for step in steps for sample in step.samples]
+        estimates = [estimate for step in steps for estimate in step.estimates]
+        truth_ns = codec.to_ns_many([step.t for step in steps])
+        sample_messages = [(channels[topic], t_ns, data, sequence) for (topic, data), t_ns, sequence in zip(
+            encoder.samples(samples), codec.to_ns_many([sample.t for sample in samples]), count(self._samples))]
+        estimate_channel, pose_channel, feet_channel = (channels[topic.name] for topic in
+                                                        (schemas.ESTIMATE, schemas.TRUTH_POSE, schemas.TRUTH_FEET))
+        estimate_messages = [(estimate_channel, t_ns, data, 0) for data, t_ns in zip(
+            encoder.estimates(estimates), codec.to_ns_many([estimate.t for estimate in estimates]))]
+        poses = [(pose_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.poses(
+            truth_ns, [step.body_position for step in steps], [step.quaternion for step in steps]))]
+        feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(steps))]
+        heavy = [(step.tick, t_ns) for step, t_ns in zip(steps, truth_ns) if step.tick is not None]
+        heavy_messages = self._heavy_truth([tick for tick, _ in heavy], [t_ns for _, t_ns in heavy])
         messages: list[tuple[int, int, bytes, int]] = []
-        for tick in self._pending_ticks:
-            self._encode(tick, messages)
-        self._pending_ticks.clear()
-        self._dataset.add_many(messages, flush)
+        next_sample = next_estimate = 0
+        for index, step in enumerate(steps):
+            last_sample, last_estimate = next_sample + len(step.samples), next_estimate + len(step.estimates)
+            messages += sample_messages[next_sample:last_sample]
+            messages += estimate_messages[next_estimate:last_estimate]
+            messages += (poses[index], feet[index])
+            if step.tick is not None:
+                messages += next(heavy_messages)
+            next_sample, next_estimate = last_sample, last_estimate
+        return messages
 
-    def _encode(self, tick: Tick, messages: list[tuple[int, int, bytes, int]]) -> None:
-        truth, channels, encoder = tick.truth, self._channels, self._encoder
-        t_ns = codec.to_ns(truth.t)
-        for sample in tick.samples:
-            topic, data = encoder.sample(sample)
-            messages.append((channels[topic], codec.to_ns(sample.t), data, self._samples))
-            self._samples += 1
-        estimate_channel = channels[schemas.ESTIMATE.name]
-        for estimate in tick.estimates:
-            messages.append((estimate_channel, codec.to_ns(estimate.t), encoder.estimate(estimate), 0))
-        messages.append((channels[schemas.TRUTH_POSE.name], t_ns,
-                         encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        messages.append((channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
-        if self._encoded_ticks % self._every == 0:
-            self._encode_heavy_truth(tick, t_ns, messages)
-        self._encoded_ticks += 1
+    def _heavy_truth(self, ticks: list[Tick], truth_ns: list[int]):
+        """Per tick, the (channel, log ns, data, sequence) of its transform, state, contacts, support
+        and command."""
+        channels, encoder = self._channels, self._encoder
+        truths = [tick.truth for tick in ticks]
+        commands = [tick.command for tick in ticks]
+        transforms = encoder.transforms(truth_ns, [truth.body_position for truth in truths],
+                                        [tick.truth_quaternion for tick in ticks])
+        supports = [encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
+                    for truth, tick in zip(truths, ticks)]
+        columns = zip(transforms, encoder.truth_states(truths),
+                      encoder.contacts_of([truth.t for truth in truths], [tick.contacts for tick in ticks]), supports,
+                      encoder.commands(commands), truth_ns, codec.to_ns_many([command.t for command in commands]))
+        tf, state, contacts, support, command = (channels[topic.name] for topic in (
+            schemas.TF, schemas.TRUTH_STATE, schemas.TRUTH_CONTACTS, schemas.TRUTH_SUPPORT, schemas.COMMAND))
+        for transform, state_data, contacts_data, support_data, command_data, t_ns, command_ns in columns:
+            yield ((tf, t_ns, transform, 0), (state, t_ns, state_data, 0), (contacts, t_ns, contacts_data, 0),
+                   (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
 
-    def _encode_heavy_truth(self, tick: Tick, t_ns: int, messages: list[tuple[int, int, bytes, int]]) -> None:
-        truth, channels, encoder = tick.truth, self._channels, self._encoder
-        messages.append((channels[schemas.TF.name], t_ns,
-                         encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0))
-        messages.append((channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0))
-        messages.append((channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0))
-        messages.append((channels[schemas.TRUTH_SUPPORT.name], t_ns,
-                         encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin),
-                         0))
-        messages.append((channels[schemas.COMMAND.name], codec.to_ns(tick.command.t), encoder.command(tick.command), 0))
+
+class _Step(NamedTuple):
+    """What the messages of every tick need, kept until the next write in place of the tick, which
+    is kept only every `truth_every` ticks, for its heavy truth: the other ticks' objects are freed
+    at once, while still in the processor's caches (freeing 500 ticks at each write cost ~6 us a tick)."""
+    t: float
+    body_position: np.ndarray
+    quaternion: np.ndarray
+    foot_positions: np.ndarray
+    foot_contact: np.ndarray
+    samples: list
+    estimates: list
+    tick: Tick | None
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from sensors.config import EncoderConfig
 from sensors.faults import Fault, FaultInjector
@@ -30,12 +31,23 @@ class Encoders:
         return angles + self._noise.next() if self._noise else np.array(angles, dtype=float)
 
     def digitize(self, raw: np.ndarray) -> np.ndarray:
-        half = self._counts_per_turn // 2
-        counts = (np.rint(raw / self.lsb) + half) % self._counts_per_turn - half
-        return counts * self.lsb
+        return wrapped_counts(raw, self.lsb, self._counts_per_turn)
 
     def samples_at(self, truth: Truth, t: float) -> list[EncoderSample]:
         out, dropped = measure(self, self._faults, t, truth.joint_positions)
         if dropped is not None and dropped.all():
             return []
         return [EncoderSample(t, out)]
+
+
+# Compiled: numpy's five calls on 18 angles cost ~6 us per sample in the run loop, the loop ~1 us.
+# Integer-valued floats throughout until the last product, so the same bits as numpy's
+# (rint, then Python's float modulo, which numba's % follows).
+@njit(cache=True)
+def wrapped_counts(raw: np.ndarray, lsb: float, counts_per_turn: int) -> np.ndarray:
+    """Angles quantized to `lsb` and wrapped to [-pi, pi): counts in [-half, half) turns, times lsb."""
+    half = counts_per_turn // 2
+    out = np.empty_like(raw)
+    for i in range(len(raw)):
+        out[i] = ((np.rint(raw[i] / lsb) + half) % counts_per_turn - half) * lsb
+    return out

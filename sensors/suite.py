@@ -55,18 +55,19 @@ class SensorSuite:
     def update(self, truth: Truth) -> list[Sample]:
         """Samples with t in (previous truth.t, truth.t], sorted by t (ties: IMU, array, encoders, feet)."""
         samples: list[Sample] = []
-        latest = truth.t + TIME_EPS
+        now, previous = truth.t, self._previous
         for sensor in self._sensors:
-            if sensor.clock.next_time > latest:    # the usual case of the slower sensors: nothing due
+            clock = sensor.clock
+            if clock.next_time > now + TIME_EPS:    # the usual case of the slower sensors: nothing due
                 continue
-            for t in sensor.clock.due(truth.t):
-                samples.extend(sensor.samples_at(self._truth_at(t, truth), t))
+            for t in clock.due(now):
+                # The latest truth at or before t (on the first call, the truth given).
+                source = truth if previous is None or t >= now - TIME_EPS else previous
+                samples += sensor.samples_at(source, t)
         self._previous = truth
         if len(samples) > 1:
-            samples.sort(key=attrgetter("t"))
+            samples.sort(key=_SAMPLE_TIME)
         return samples
 
-    def _truth_at(self, t: float, truth: Truth) -> Truth:
-        if self._previous is None or t >= truth.t - TIME_EPS:
-            return truth
-        return self._previous
+
+_SAMPLE_TIME = attrgetter("t")

@@ -74,6 +74,7 @@ class Simulation:
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
         self._body_corners = signs * np.asarray(config.robot.body_size) / 2
         self.mass = self.robot.getMass()
+        self._check_root_joint()
         self._setup_servos()
         self.contact_model = config.run.contact
         self._setup_contact()
@@ -85,6 +86,9 @@ class Simulation:
             self.world.getConstraintSolver().getCollisionGroup().removeShapeFramesOf(self.robot)
         self.standing_targets = self._place_robot()
         self._commands = np.zeros(self.robot.getNumDofs())
+        # DART's clock, kept here: World.step adds the time step to it (tested equal bit for bit),
+        # and asking DART costs a binding call (~1 us in the run loop) twice per step.
+        self._time = self.world.getTime()
         self._contacts = FootContacts.none()
         self._state = BodyState.zero()
         self._read_state()
@@ -92,6 +96,16 @@ class Simulation:
         self.worst_cone_ratio = 1.0        # worst |F_t| / (mu F_n) that DART reported
 
     # ----------------------------------------------------------------- set-up
+    def _check_root_joint(self) -> None:
+        """The state read-out computes the body's pose and twist from the first six coordinates
+        (`free_joint_transform`): that holds for a FreeJoint to the world with identity offsets."""
+        joint, identity = self.body.getParentJoint(), np.eye(4)
+        if (joint.getType() != "FreeJoint" or self.body.getParentBodyNode() is not None
+                or joint.getIndexInSkeleton(0) != 0
+                or not np.array_equal(joint.getTransformFromParentBodyNode().matrix(), identity)
+                or not np.array_equal(joint.getTransformFromChildBodyNode().matrix(), identity)):
+            raise RuntimeError("the robot's body must hang from the world on a FreeJoint with identity offsets")
+
     def _setup_servos(self) -> None:
         # A DC servo's torque falls linearly from stall to zero at no-load speed: the motor's
         # back-EMF damping is stall torque / no-load speed (0.43 N m s/rad for the MX-28). DART
@@ -152,7 +166,7 @@ class Simulation:
     # ----------------------------------------------------------------- stepping
     @property
     def time(self) -> float:
-        return self.world.getTime()
+        return self._time
 
     def joint_positions(self) -> np.ndarray:
         return self.robot.getPositions()[6:]
@@ -166,25 +180,24 @@ class Simulation:
         if self.contact_model == "compliant":
             self._apply_compliant_contact()
         self.world.step()
+        self._time += self.dt
         if self.contact_model == "dart":
             self._contacts = self._read_dart_contacts()
         self._read_state()
 
     def _read_state(self) -> None:
-        """Everything the truth and the next contact need, read from DART once per step: the body's
-        transform and twist, joint angles and rates, centre of mass; the feet follow by eq. 2."""
-        transform = self.body.getWorldTransform().matrix()
+        """Everything the truth and the next contact need, read from DART once per step: the joint
+        coordinates and rates (the body's pose and twist follow from the root FreeJoint's), the centre
+        of mass; the feet follow by eq. 2."""
         positions, velocities = self.robot.getPositions(), self.robot.getVelocities()
         previous, geometry = self._state, self.geometry
-        finite, body, foot_centers, foot_links = _body_state(
-            transform, self.body.getSpatialVelocity(), positions, velocities, previous.linear_velocity,
-            previous.angular_velocity, self.dt, geometry.base_angle, geometry.base_distance, geometry.femur,
-            geometry.tibia)
+        finite, transform, body, foot_centers, foot_links = _body_state(
+            positions, velocities, previous.linear_velocity, previous.angular_velocity, self.dt, geometry.base_angle,
+            geometry.base_distance, geometry.femur, geometry.tibia)
         if not finite:
             raise SimulationDiverged(f"simulation state became non-finite at t = {self.time:.3f} s")
-        self._state = BodyState(self.world.getTime(), transform, body[0:4], body[4:7], body[7:10], body[10:13],
-                                body[13:16], positions[6:], velocities[6:], np.asarray(self.robot.getCOM()),
-                                foot_centers, foot_links)
+        self._state = BodyState(self._time, transform, body[0:4], body[4:7], body[7:10], body[10:13], body[13:16],
+                                positions[6:], velocities[6:], self.robot.getCOM(), foot_centers, foot_links)
 
     def _apply_compliant_contact(self) -> None:
         contacts, offsets = self.compliant.compute(self._state.foot_centers, self._state.foot_links)
@@ -260,28 +273,17 @@ class Simulation:
         return self._state.transform.copy()
 
     def body_quaternion(self) -> np.ndarray:
-        """world_from_body as (x, y, z, w)."""
-        return self._state.quaternion.copy()
+        """world_from_body as (x, y, z, w): new at each step and shared, like the truth's arrays
+        (not to be modified)."""
+        return self._state.quaternion
 
     def truth(self) -> Truth:
         state, contacts = self._state, self._contacts
         # Every array of the state and the contacts is new at each step: the truth may share them.
-        return Truth(
-            t=state.t,
-            body_position=state.transform[:3, 3],
-            body_rotation=state.transform[:3, :3],
-            body_linear_velocity=state.linear_velocity,
-            body_angular_velocity=state.angular_velocity,
-            body_linear_acceleration=state.linear_acceleration,
-            body_angular_acceleration=state.angular_acceleration,
-            joint_positions=state.joint_positions,
-            joint_velocities=state.joint_velocities,
-            foot_positions=state.foot_centers,
-            foot_forces=contacts.forces,
-            foot_normal_forces=contacts.normal_forces,
-            foot_contact=contacts.in_contact,
-            com_position=state.com,
-        )
+        return Truth(state.t, state.transform[:3, 3], state.transform[:3, :3], state.linear_velocity,
+                     state.angular_velocity, state.linear_acceleration, state.angular_acceleration,
+                     state.joint_positions, state.joint_velocities, state.foot_centers, contacts.forces,
+                     contacts.normal_forces, contacts.in_contact, state.com)     # positional: half the cost of keywords
 
     def contacts(self) -> FootContacts:
         return self._contacts
@@ -326,13 +328,14 @@ class BodyState(NamedTuple):
 # The state read-out is compiled with numba: it is a few dozen scalar operations per leg, which
 # numpy (and DART's per-body getters, ~6 us a call) made a tenth of the whole run loop.
 @njit(cache=True)
-def _body_state(transform, twist, positions, velocities, previous_linear, previous_angular, dt, base_angle,
-                base_distance, a2, a3):
-    """Finiteness; the body's quaternion, world-frame velocities (from the body-frame twist) and their
+def _body_state(positions, velocities, previous_linear, previous_angular, dt, base_angle, base_distance, a2, a3):
+    """Finiteness; world_from_body (4, 4); the body's quaternion, world-frame velocities and their
     finite differences over the step, in one (16,) array (four arrays fewer to hand back: numba
     boxes each returned array at ~0.5 us); the foot centres (6, 3) and the tibias' motion and pose
     (6, 6, 3) (kinematics.WorldFeet, packed as CompliantContact.compute's `links`)."""
+    transform = free_joint_transform(positions)
     rotation = transform[:3, :3]
+    twist = free_joint_twist(rotation, velocities)
     angular, linear = np.empty(3), np.empty(3)
     for i in range(3):
         angular[i] = rotation[i, 0] * twist[0] + rotation[i, 1] * twist[1] + rotation[i, 2] * twist[2]
@@ -349,7 +352,48 @@ def _body_state(transform, twist, positions, velocities, previous_linear, previo
     body[4:7], body[7:10], body[10:13], body[13:16] = linear, angular, linear_acceleration, angular_acceleration
     links = np.empty((6, 6, 3))
     links[:, 0], links[:, 1], links[:, 2:5], links[:, 5] = feet_velocities, spins, rotations, origins
-    return finite, body, centers, links
+    return finite, transform, body, centers, links
+
+
+# The body's pose and twist from the root FreeJoint's coordinates and rates, as DART computes them
+# (tests/testbed/test_simulation_state.py holds them to DART's getters bit for bit): asking DART for
+# them costs ~15 us per step in the run loop (two binding calls and an Isometry3 object), this ~0.1 us.
+# It holds for a FreeJoint to the world with identity offsets (`Simulation._check_root_joint`).
+EXP_MAP_SMALL_ANGLE = 1e-3      # rad: DART's expMapRot switches to its second-order series below this
+
+
+@njit(cache=True)
+def free_joint_transform(positions):
+    """(4, 4) world_from_body of positions[0:6] = (rotation vector, translation): DART's
+    math::expMapRot, R = I + sin(t)/t [q]x + (1 - cos(t))/t^2 [q]x^2 (I + [q]x + [q]x^2 / 2 below the
+    small angle), with Eigen's order of operations; the translation gains DART's + 0.0 (-0.0 becomes 0.0)."""
+    q0, q1, q2 = positions[0], positions[1], positions[2]
+    theta = math.sqrt((q0 * q0 + q1 * q1) + q2 * q2)
+    if theta < EXP_MAP_SMALL_ANGLE:
+        first, second = 1.0, 0.5
+    else:
+        first, second = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
+    hat = np.array([[0.0, -q2, q1], [q2, 0.0, -q0], [-q1, q0, 0.0]])
+    transform = np.zeros((4, 4))
+    for i in range(3):
+        for j in range(3):
+            squared = (hat[i, 0] * hat[0, j] + hat[i, 1] * hat[1, j]) + hat[i, 2] * hat[2, j]
+            transform[i, j] = ((1.0 if i == j else 0.0) + first * hat[i, j]) + second * squared
+        transform[i, 3] = positions[3 + i] + 0.0
+    transform[3, 3] = 1.0
+    return transform
+
+
+@njit(cache=True)
+def free_joint_twist(rotation, velocities):
+    """(6,) body-frame spatial velocity (angular, linear) of velocities[0:6] (world-frame rates):
+    R^T w and R^T v, summed onto 0.0 as DART accumulates them onto a zero twist (-0.0 becomes 0.0)."""
+    twist = np.empty(6)
+    for i in range(3):
+        for start in (0, 3):
+            twist[start + i] = 0.0 + ((rotation[0, i] * velocities[start] + rotation[1, i] * velocities[start + 1])
+                                      + rotation[2, i] * velocities[start + 2])
+    return twist
 
 
 @njit(cache=True)

@@ -32,18 +32,28 @@ def debounced_support(last_touch: np.ndarray, contact: np.ndarray, t: float, fee
     `resting` (6,) bool on it, and the centre of mass's margin in it, in one compiled call:
     `last_touch` (6,) holds each foot's latest touch time and is updated in place from `contact`
     (6,) bool at time t; `feet` (6, 3)."""
-    return _debounced_support(last_touch, contact, t, feet, float(com_xy[0]), float(com_xy[1]), debounce, resting)
+    polygon, margin, _ = stance_support(last_touch, contact, np.ones(len(feet), np.bool_), t, feet, com_xy, debounce,
+                                        resting)
+    return polygon, margin
 
 
 @njit(cache=True)
-def _debounced_support(last_touch, contact, t, feet, com_x, com_y, debounce, resting):
+def stance_support(last_touch: np.ndarray, contact: np.ndarray, swinging: np.ndarray, t: float, feet: np.ndarray,
+                   com: np.ndarray, debounce: float, resting: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """`debounced_support`, and the stance feet (not `swinging`) that neither touch the ground nor
+    touched it within `debounce`, as bits (leg i: 1 << i): the feet whose `resting` the caller may
+    want to know (all False in a first call) before asking again. `com` is read at [0] and [1]."""
     supporting = np.empty(len(feet), np.bool_)
+    late = 0
     for leg in range(len(feet)):
         if contact[leg]:
             last_touch[leg] = t
-        supporting[leg] = resting[leg] or t - last_touch[leg] <= debounce
+        recent = t - last_touch[leg] <= debounce
+        if not (swinging[leg] or recent):
+            late |= 1 << leg
+        supporting[leg] = resting[leg] or recent
     polygon = _monotone_chain(np.ascontiguousarray(feet[supporting, :2]))
-    return polygon, _margin(polygon, com_x, com_y)
+    return polygon, _margin(polygon, com[0], com[1]), late
 
 
 @njit(cache=True)

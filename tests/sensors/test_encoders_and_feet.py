@@ -55,3 +55,24 @@ def test_foot_force_noise_and_saturation():
     assert np.std(forces[:, :5]) == pytest.approx(config.foot.noise, rel=0.1)
     np.testing.assert_allclose(forces[:, 5], config.foot.full_scale)
     assert all(s.contact.all() for s in samples)
+
+
+def test_compiled_digitizing_gives_numpys_bits():
+    """The encoders' wrap and the foot sensors' saturation and hysteresis are compiled; they give
+    what the numpy expressions they replace give, bit for bit (NaN and signed zeros included)."""
+    from sensors.encoders import wrapped_counts
+    from sensors.foot import contact_hysteresis, saturated
+    rng = np.random.default_rng(8)
+    for bits in (10, 12, 16):
+        counts, lsb = 2**bits, 2 * math.pi / 2**bits
+        raw = np.concatenate([rng.uniform(-20.0, 20.0, 5000), (np.arange(-4000, 4000) + 0.5) * lsb,
+                              [0.0, -0.0, math.pi, -math.pi, np.nan]])
+        half = counts // 2
+        expected = ((np.rint(raw / lsb) + half) % counts - half) * lsb
+        np.testing.assert_array_equal(wrapped_counts(raw, lsb, counts).view(np.uint64), expected.view(np.uint64))
+    forces = np.concatenate([rng.normal(0.0, 300.0, 5000), [0.0, -0.0, 200.0, -200.0, np.nan, np.inf, -np.inf]])
+    expected = np.minimum(np.maximum(forces, -200.0), 200.0)
+    np.testing.assert_array_equal(saturated(forces, 200.0).view(np.uint64), expected.view(np.uint64))
+    previous = rng.random(len(forces)) < 0.5
+    np.testing.assert_array_equal(contact_hysteresis(forces, previous, 1.0, 0.5),
+                                  (forces > 1.0) | (previous & (forces >= 0.5)))

@@ -224,7 +224,7 @@ def test_support_counts_touching_feet_and_stance_feet_resting_on_the_ground():
 
     def polygon(t, contact):
         truth = SimpleNamespace(t=t, foot_contact=contact, foot_positions=feet, com_position=np.zeros(3))
-        return support.polygon_and_margin(truth, stance)[0]
+        return support.polygon_and_margin(truth, ~stance)[0]
 
     assert np.allclose(polygon(0.0, touching), support_polygon(feet[[0, 1, 2, 3, 4], :2]))
     # The swing foot supports for CONTACT_DEBOUNCE after its touch; the stance feet on the ground
