@@ -63,7 +63,8 @@ def test_replay_reproduces_the_live_metrics_exactly(live_run):
     assert live["roll_rmse_deg"] is not None
     for key in METRIC_KEYS:
         assert replayed[key] == live[key], key
-    assert replayed["realtime_factor"] > live["realtime_factor"]
+    # Reported, not compared: a wall-clock race between two processes fails on a loaded machine.
+    assert replayed["realtime_factor"] > 0
 
 
 def test_info_describes_the_run(live_run):
