@@ -41,6 +41,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy.stats import chi2
 
 from estimators import rotations as rot
@@ -50,7 +51,7 @@ from estimators.leg_odometry import StanceTracker
 from estimators.linalg import cross, skew
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, DQ, REJECTED, Preintegration, imu_sample
-from estimators.terrain import TerrainFilter, plane_measurement
+from estimators.terrain import TerrainFilter, grown_covariance, plane_measurement
 from sensors.samples import EncoderSample, FootSample
 from testbed.kinematics import LegGeometry
 
@@ -65,6 +66,7 @@ FEET = slice(FOOT0, ERROR_DIM)
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
 MAX_STEP = 0.01                # s: without encoder samples, the filter steps on its own this often
 ZERO = np.zeros(3)
+ZERO33 = np.zeros((3, 3))
 
 
 def foot(leg: int) -> slice:
@@ -458,9 +460,24 @@ class FusionEstimator(Estimator):
         return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output)
 
     def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
-        euler = rot.euler_jacobian(roll, pitch)
-        attitude_cov = euler @ self.P[THETA, THETA] @ euler.T
-        terrain = (None, None, None, None)
-        if self.terrain.x is not None:
-            terrain = self.terrain.output(t, yaw, attitude_cov[:2, :2])
-        return (attitude_cov, self.state.bias.copy(), self.P[BIAS, BIAS].copy(), *terrain)
+        terrain = self.terrain
+        if terrain.x is None:
+            return (*output_covariances(self.P, self.state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
+                    None, None, None, None)
+        terrain_roll, terrain_pitch, height, covariance, growth = terrain.heading_output(yaw)
+        attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, self.state.bias, roll, pitch, covariance,
+                                                                       growth, max(0.0, t - terrain.t))
+        return attitude_cov, bias, bias_cov, terrain_roll, terrain_pitch, height, terrain_cov
+
+
+# Compiled: as numpy calls on 3x3 blocks this took 18 us per step, a tenth of the filter's time.
+@njit(cache=True)
+def output_covariances(P: np.ndarray, bias: np.ndarray, roll: float, pitch: float, terrain_cov: np.ndarray,
+                       terrain_growth: np.ndarray, elapsed: float) -> tuple:
+    """(attitude_cov (roll, pitch, yaw), gyro bias, its covariance, terrain covariance): the
+    output's arrays, new, from the error covariance P and the terrain's covariance at its last
+    update, grown over `elapsed`."""
+    euler = rot.euler_jacobian(roll, pitch)
+    attitude_cov = euler @ np.ascontiguousarray(P[0:3, 0:3]) @ euler.T
+    return (attitude_cov, bias.copy(), np.ascontiguousarray(P[3:6, 3:6]),
+            grown_covariance(terrain_cov, terrain_growth, elapsed, attitude_cov[:2, :2]))

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 Quaternion = tuple[float, float, float, float]
 
@@ -105,6 +106,7 @@ def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> Quaternion:
                        cr * cp * cy + sr * sp * sy))
 
 
+@njit(cache=True)    # compiled: the fusion filters' output kernel calls it at every step
 def euler_jacobian(roll: float, pitch: float) -> np.ndarray:
     """d(roll, pitch, yaw) / d(dtheta) for a local error R Exp(dtheta).
 

@@ -170,24 +170,26 @@ class TerrainFilter:
         covariance.flat[::4] += self.q * max(0.0, t - self.t)
         return covariance
 
-    def output(self, t: float, yaw: float, tilt_cov: np.ndarray | None) -> tuple[float, float, float, np.ndarray]:
-        """(terrain_roll, terrain_pitch, body_height, covariance) at time t, heading `yaw`.
-
-        The plane was measured in axes aligned with the estimated gravity, so a body tilt error
-        moves the terrain angles one for one (to first order): its 2x2 covariance is added.
-        """
+    def heading_output(self, yaw: float) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+        """(terrain_roll, terrain_pitch, body_height, covariance, growth) seen from heading `yaw`:
+        the covariance at the last update and its growth per second since (`grown_covariance`).
+        Recomputed only after an update or a heading change beyond YAW_TOLERANCE."""
         if self._output is None or abs(yaw - self._output_yaw) > YAW_TOLERANCE:
-            self._output = self._heading_output(yaw)
+            self._output = _heading_output(self.x, self.P, self.q, yaw)
             self._output_yaw = yaw
-        roll, pitch, height, covariance, growth = self._output
-        covariance = covariance + growth * max(0.0, t - self.t)
-        if tilt_cov is not None:
-            covariance[:2, :2] += tilt_cov
-        return roll, pitch, height, covariance
+        return self._output
 
-    def _heading_output(self, yaw: float) -> tuple[float, float, float, np.ndarray, np.ndarray]:
-        """Terrain angles for a heading, their covariance at the last update and its growth rate."""
-        return _heading_output(self.x, self.P, self.q, yaw)
+
+@njit(cache=True)
+def grown_covariance(covariance: np.ndarray, growth: np.ndarray, elapsed: float, tilt_cov: np.ndarray) -> np.ndarray:
+    """The terrain output's covariance `elapsed` s after the last update (a new array).
+
+    The plane was measured in axes aligned with the estimated gravity, so a body tilt error moves
+    the terrain angles one for one (to first order): the tilt's 2x2 covariance is added.
+    """
+    grown = covariance + growth * elapsed
+    grown[:2, :2] += tilt_cov
+    return grown
 
 
 @njit(cache=True)
