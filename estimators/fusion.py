@@ -51,7 +51,7 @@ from estimators.leg_odometry import StanceTracker
 from estimators.linalg import cross, skew
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, DQ, REJECTED, Preintegration, imu_sample
-from estimators.terrain import TerrainFilter, grown_covariance, plane_measurement
+from estimators.terrain import TerrainFilter, grown_covariance
 from sensors.samples import EncoderSample, FootSample
 from testbed.kinematics import LegGeometry
 
@@ -409,7 +409,8 @@ class FusionEstimator(Estimator):
                 self._restart_velocity()
         for leg in restart:
             self._restart_foot(leg, measured[leg])
-        self._terrain_update(sample.t, feet[measurable])
+        self.terrain.add_feet(sample.t, feet, measurable, self.state.q, self.params.foot_position_std,
+                              self.foot_radius)
         self._new_interval()
 
     def _roll_feet(self, positions: np.ndarray) -> None:
@@ -437,13 +438,6 @@ class FusionEstimator(Estimator):
         self.P[:, block] = 0.0
         self.P[block, block] = self.noise.foot_position * np.eye(3)
         self.legs.tracked[leg] = True
-
-    def _terrain_update(self, t: float, stance: np.ndarray) -> None:
-        """The support plane of the stance feet (body frame, from O_b) in gravity-aligned axes."""
-        valid, measurement, covariance = plane_measurement(stance @ rot.to_matrix(self.state.q).T,
-                                                           self.params.foot_position_std, self.foot_radius)
-        if valid:
-            self.terrain.update(t, measurement, covariance)
 
     # -- output --------------------------------------------------------------------------------
 
