@@ -392,35 +392,30 @@ class FusionEstimator(Estimator):
         if self.state is None:
             return
         self._step()
+        rolling = None
         if self.params.rolling_feet:
-            self._roll_feet(sample.positions)
-        feet = self.legs.feet(sample.positions)
-        measured = feet - self.imu_position
-        measurable = self.legs.measurable(feet)
-        tracked = np.flatnonzero(measurable & self.legs.tracked)
-        restart = np.flatnonzero(measurable & ~self.legs.tracked)
-        if len(tracked):
-            used = self._correct_feet(tracked, measured[tracked], self.noise.foot_position, self.foot_gate)
-            # A foot whose kinematics disagree slipped (or read badly): start it again. When most
-            # of them disagree, the filter's velocity is wrong instead: reopen it too.
-            self.rejected_feet += int(np.count_nonzero(~used))
-            restart = np.concatenate([restart, tracked[~used]])
-            if np.count_nonzero(~used) > len(used) // 2:
-                self._restart_velocity()
+            rolling = (self.state.feet, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
+        reading = self.legs.read(sample.positions, rolling)
+        if rolling is not None:
+            self._body_turn[:] = 0.0
+        measured = reading.feet - self.imu_position
+        restart = reading.new
+        if len(reading.tracked):
+            used = self._correct_feet(reading.tracked, measured[reading.tracked], self.noise.foot_position,
+                                      self.foot_gate)
+            rejected = reading.tracked[~used]
+            if len(rejected):
+                # A foot whose kinematics disagree slipped (or read badly): start it again. When most
+                # of them disagree, the filter's velocity is wrong instead: reopen it too.
+                self.rejected_feet += len(rejected)
+                restart = np.concatenate([restart, rejected])
+                if len(rejected) > len(used) // 2:
+                    self._restart_velocity()
         for leg in restart:
             self._restart_foot(leg, measured[leg])
-        self.terrain.add_feet(sample.t, feet, measurable, self.state.q, self.params.foot_position_std,
+        self.terrain.add_feet(sample.t, reading.feet, reading.measurable, self.state.q, self.params.foot_position_std,
                               self.foot_radius)
         self._new_interval()
-
-    def _roll_feet(self, positions: np.ndarray) -> None:
-        """Move the tracked feet's centres by how far their spheres rolled since the last encoder sample."""
-        shift = self.legs.rolling_shift(positions, self._body_turn, np.array(rot.up_in_body(self.state.q)),
-                                        self.foot_radius)
-        self._body_turn[:] = 0.0
-        feet = self.state.feet.copy()
-        feet[self.legs.tracked] += shift[self.legs.tracked]
-        self.state.feet = feet
 
     def _restart_velocity(self) -> None:
         self.P[VEL, :] = 0.0
