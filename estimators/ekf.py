@@ -18,8 +18,7 @@ from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, NominalState,
-                               inject_in_place)
+from estimators.fusion import ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_in_place
 from estimators.linalg import inverse3, skew
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
                                        current_attitude, quaternion_matrix, skew3)
@@ -154,10 +153,8 @@ class EkfEstimator(FusionEstimator):
 
     def _predict(self) -> None:
         state = self.state
-        velocity, feet = state.velocity.copy(), state.feet.copy()
-        q = predict(self.pre.buffer, velocity, feet, self.P, self._F, self._noise_rates, self._extra_noise(),
-                    self.gravity)
-        self.state = NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross)
+        state.q = predict(self.pre.buffer, state.velocity, state.feet, self.P, self._F, self._noise_rates,
+                          self._extra_noise(), self.gravity)
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)

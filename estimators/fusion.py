@@ -50,7 +50,7 @@ from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.leg_odometry import StanceTracker
 from estimators.linalg import cross, skew
 from estimators.stillness import StillWindow
-from estimators.preintegration import ACCEPTED, DQ, REJECTED, Preintegration, imu_sample
+from estimators.preintegration import ACCEPTED, DT, DV, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
 from sensors.samples import EncoderSample, FootSample
 from testbed.kinematics import LegGeometry
@@ -247,6 +247,8 @@ class FusionEstimator(Estimator):
         self._accel_rejected_since: float | None = None
         self._output: tuple | None = None
         self._body_turn = np.zeros(3)        # rad, the gyro's rotation vector since the last encoder sample
+        self._mean_force = np.zeros(3)       # m/s^2, and rad: the last interval's (`interval_summary`)
+        self._turn = np.zeros(3)
 
     # -- filter core ---------------------------------------------------------------------------
 
@@ -311,15 +313,16 @@ class FusionEstimator(Estimator):
         self._restart_tilt(accel)
         return True
 
-    def _step(self) -> None:
-        """Apply the preintegrated interval to the state and its covariance."""
-        if self.pre.dt <= 0:
+    def _step(self, new_interval: bool = True) -> None:
+        """Apply the preintegrated interval to the state and its covariance; then start the next
+        interval, unless the caller (`new_interval` False) corrects the state further first."""
+        dt = self.pre.dt
+        if dt <= 0:
             return
-        mean_force = self.pre.dv / self.pre.dt
-        turn = np.array(rot.log(tuple(self.pre.buffer[DQ])))       # the gyro's alone: no filter corrections
-        self._body_turn += turn
-        self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn @ turn))**2
-        still_force = self.still.add(self.pre.dt, turn, mean_force)
+        mean_force, turn = self._mean_force, self._turn
+        turn_squared = interval_summary(self.pre.buffer, mean_force, turn, self._body_turn)
+        self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2
+        still_force = self.still.add(dt, turn, mean_force)
         self._predict()
         if still_force is not None:
             self._correct_specific_force(still_force + self.state.accel_bias, self._still_variance, self.accel_gate)
@@ -332,7 +335,8 @@ class FusionEstimator(Estimator):
             self._open_bias(np.array(rot.up_in_body(self.state.q)))
         if self.consider is None and self.t >= self.learn_accel_bias_until:
             self._hold_accel_bias()
-        self._new_interval()
+        if new_interval:
+            self._new_interval()
 
     def _hold_accel_bias(self) -> None:
         """The start-up poses are over (or there are none to learn from, "never"): the
@@ -391,7 +395,7 @@ class FusionEstimator(Estimator):
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
             return
-        self._step()
+        self._step(new_interval=False)      # the next interval starts from the state the feet correct
         rolling = None
         if self.params.rolling_feet:
             rolling = (self.state.feet, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
@@ -457,6 +461,17 @@ class FusionEstimator(Estimator):
         attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, self.state.bias, roll, pitch, covariance,
                                                                        growth, max(0.0, t - terrain.t))
         return attitude_cov, bias, bias_cov, terrain_roll, terrain_pitch, height, terrain_cov
+
+
+@njit(cache=True)
+def interval_summary(buffer: np.ndarray, mean_force: np.ndarray, turn: np.ndarray, body_turn: np.ndarray) -> float:
+    """The preintegrated interval's mean specific force and the gyro's rotation vector (without
+    the filter's corrections), written into `mean_force` and `turn`; the turn is added to
+    `body_turn`. Returns turn . turn."""
+    mean_force[:] = buffer[DV] / buffer[DT]
+    turn[0], turn[1], turn[2] = rot.log((buffer[16], buffer[17], buffer[18], buffer[19]))
+    body_turn += turn
+    return turn @ turn
 
 
 # Compiled: as numpy calls on 3x3 blocks this took 18 us per step, a tenth of the filter's time.
