@@ -18,7 +18,8 @@ from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_in_place
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_arrays,
+                               inject_in_place)
 from estimators.linalg import inverse3, skew
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
                                        current_attitude, quaternion_matrix, skew3)
@@ -126,6 +127,18 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
 
 
 @njit(cache=True)
+def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, variance: float, gate: float, consider: bool,
+                 dx: np.ndarray, tilt_cov: np.ndarray, q: rot.Quaternion, bias: np.ndarray, velocity: np.ndarray,
+                 accel_bias: np.ndarray, accel_cross: np.ndarray, feet: np.ndarray) -> tuple:
+    """`update_feet` with the feet's kinematics `measured` ((n, 3), legs `legs`), then the
+    correction injected into the nominal state (its arrays in place). Returns (accepted, new q)."""
+    accepted = update_feet(P, measured - feet[legs], legs, variance, gate, consider, dx, tilt_cov)
+    if accepted.any():
+        q = inject_arrays(q, dx, bias, velocity, accel_bias, accel_cross, feet)
+    return accepted, q
+
+
+@njit(cache=True)
 def _symmetrise(P: np.ndarray) -> None:
     """P <- (P + P^T) / 2 in place (numba does not guard `P += P.T` against aliasing)."""
     for i in range(P.shape[0]):
@@ -168,11 +181,11 @@ class EkfEstimator(FusionEstimator):
         return self._correct(H, mean_force - predicted, variance, gate)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        dx, tilt_cov = self._dx, self._tilt_cov
-        accepted = update_feet(self.P, measured - self.state.feet[legs], legs, variance, gate,
-                               self.consider is not None, dx, tilt_cov)
+        state, dx, tilt_cov = self.state, self._dx, self._tilt_cov
+        accepted, q = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx, tilt_cov,
+                                   state.q, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
         if accepted.any():
-            inject_in_place(self.state, dx)
+            state.q = q
             self._record_tilt_correction(dx[THETA].copy(), tilt_cov.copy())
         return accepted
 

@@ -144,13 +144,20 @@ def reset_jacobian(dtheta: np.ndarray) -> np.ndarray:
 
 
 def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
-    """inject, modifying `state` (the EKF's path)."""
-    state.q = rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2])
-    state.bias = state.bias + dx[BIAS]
-    state.velocity = state.velocity + dx[VEL]
-    state.accel_bias = state.accel_bias + dx[ACCEL_BIAS]
-    state.accel_cross = state.accel_cross + dx[ACCEL_CROSS]
-    state.feet = state.feet + dx[FEET].reshape(NUM_FEET, 3)
+    """inject, modifying `state` and its arrays (the EKF's path)."""
+    state.q = inject_arrays(state.q, dx, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
+
+
+@njit(cache=True)
+def inject_arrays(q: rot.Quaternion, dx: np.ndarray, bias: np.ndarray, velocity: np.ndarray, accel_bias: np.ndarray,
+                  accel_cross: np.ndarray, feet: np.ndarray) -> rot.Quaternion:
+    """inject into the nominal state's arrays, in place; returns the new attitude."""
+    bias += dx[BIAS]
+    velocity += dx[VEL]
+    accel_bias += dx[ACCEL_BIAS]
+    accel_cross += dx[ACCEL_CROSS]
+    feet += dx[FEET].reshape(NUM_FEET, 3)
+    return rot.rotate_by_vector(q, dx[0], dx[1], dx[2])
 
 
 def inject(state: NominalState, dx: np.ndarray) -> NominalState:
