@@ -83,12 +83,12 @@ def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
     J = buffer[JACOBIANS].reshape(5, 3, 3)
     R = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19])
     rotated = R @ accel
-    R_accel_skew = R @ skew3(accel[0], accel[1], accel[2])
+    accel_turn = R @ skew3(accel[0], accel[1], accel[2]) @ J[J_R]     # R [a]x J_R, used twice
     half_dt2 = 0.5 * dt * dt
     # Position first: it reads the velocity terms before this interval (Forster eq. 59).
-    J[J_P_G] += J[J_V_G] * dt - half_dt2 * (R_accel_skew @ J[J_R])
+    J[J_P_G] += J[J_V_G] * dt - half_dt2 * accel_turn
     J[J_P_A] += J[J_V_A] * dt - half_dt2 * R
-    J[J_V_G] -= dt * (R_accel_skew @ J[J_R])
+    J[J_V_G] -= dt * accel_turn
     J[J_V_A] -= dt * R
     for i in range(3):
         buffer[23 + i] += buffer[20 + i] * dt + half_dt2 * rotated[i]
