@@ -38,7 +38,8 @@ class StillWindow:
             still = abs(force[0] - first[0]) <= limit and abs(force[1] - first[1]) <= limit and \
                 abs(force[2] - first[2]) <= limit
         if not still:
-            self.reset()
+            if self._first is not None:     # else the window is empty already
+                self.reset()
             return None
         if self._first is None:
             self._first = np.array(force, dtype=float)
