@@ -49,9 +49,8 @@ class StanceTracker:
         self._legs = np.empty(NUM_LEGS, dtype=np.int64)     # tracked legs, then new ones
 
     def add_contacts(self, contact: np.ndarray, normal_forces: np.ndarray) -> None:
-        loaded = np.asarray(normal_forces, dtype=float) >= self.min_force    # NaN (dropped): not loaded
-        self.contact = np.asarray(contact, dtype=bool) & loaded
-        self.tracked &= self.contact
+        _add_contacts(np.asarray(contact, dtype=bool), np.asarray(normal_forces, dtype=float), self.min_force,
+                      self.contact, self.tracked)
 
     def feet(self, positions: np.ndarray) -> np.ndarray:
         """(6, 3) foot centres in the body frame, from O_b; NaN rows for legs with a bad reading."""
@@ -112,6 +111,15 @@ def _read(positions, base_angle, base_distance, a2, a3, contact, tracked, roll, 
             legs_out[tracked_count + new_count] = leg
             new_count += 1
     return tracked_count, new_count
+
+
+# Compiled: at every foot sample (250 Hz), one call instead of three numpy ones (2.2 -> 1.1 us).
+@njit(cache=True)
+def _add_contacts(contact, normal_forces, min_force, planted, tracked):
+    """planted = contact and loaded (a NaN force, dropped, is not), in place; tracked &= planted."""
+    for leg in range(NUM_LEGS):
+        planted[leg] = contact[leg] and normal_forces[leg] >= min_force
+        tracked[leg] = tracked[leg] and planted[leg]
 
 
 # Compiled: it runs at every encoder sample, and as numpy array calls it cost ~25 us against ~1 us.
