@@ -200,7 +200,7 @@ class EkfEstimator(FusionEstimator):
         state, dx, tilt_cov = self.state, self._dx, self._tilt_cov
         accepted, q = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx, tilt_cov,
                                    state.q, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
-        if accepted.any():
+        if np.count_nonzero(accepted):
             state.q = q
             self._record_tilt_correction(dx[THETA].copy(), tilt_cov.copy())
         return accepted
