@@ -60,7 +60,7 @@ class StanceTracker:
         return world_feet_arrays(*_STILL, np.asarray(positions, dtype=float), _NO_RATES, g.base_angle,
                                  g.base_distance, g.femur, g.tibia)[0]
 
-    def read(self, positions: np.ndarray, rolling: tuple[np.ndarray, np.ndarray, np.ndarray, float] | None) -> Reading:
+    def read(self, positions: np.ndarray, rolling: tuple[np.ndarray, np.ndarray, tuple, float] | None) -> Reading:
         """`feet` and `measurable` of an encoder sample, with the measurable legs split into tracked
         and new ones. With `rolling` = (filter_feet, body_turn, up, foot_radius), the tracked rows of
         the filter's foot states `filter_feet` (body frame) first move, in place, by how far their
