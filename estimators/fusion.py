@@ -52,7 +52,7 @@ from estimators.linalg import cross, skew
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, DT, DV, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
-from sensors.samples import EncoderSample, FootSample
+from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.kinematics import LegGeometry
 
 NUM_FEET = 6
@@ -286,20 +286,30 @@ class FusionEstimator(Estimator):
 
     # -- samples -------------------------------------------------------------------------------
 
+    def update(self, sample: Sample) -> Estimate | None:
+        # The 1 kHz path in fewer Python steps: imu_sample tests the readings for finite values
+        # itself (1.4 of the 5 us an IMU sample took in a replay, three times that in the run loop).
+        if type(sample) is ImuSample and self.state is not None and self._body_from_imu is None:
+            gyro, accel = sample.gyro, sample.accel
+            if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,):
+                return self._update_imu(sample.t, gyro, accel)
+        return super().update(sample)
+
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
+        """As Estimator's, and a reading that is not finite counts as missing too."""
         if self.state is None:
             return self._initialise(t, gyro, accel)
-        dt = t - self.t
-        status, *attitude = imu_sample(self.pre.buffer, ZERO if gyro is None else gyro,
-                                       ZERO if accel is None else accel, gyro is not None, accel is not None,
-                                       max(dt, 0.0), self.gravity, self._accel_gate, self.noise.body_accel)
+        dt, buffer = t - self.t, self.pre.buffer
+        status, *attitude = imu_sample(buffer, ZERO if gyro is None else gyro, ZERO if accel is None else accel,
+                                       gyro is not None, accel is not None, max(dt, 0.0), self.gravity,
+                                       self._accel_gate, self.noise.body_accel)
         if dt > 0:
             self.t = t
         if status == ACCEPTED:
             self._accel_rejected_since = None
         elif status == REJECTED and self._accel_rejected(t, accel):
             attitude = None
-        if self.pre.dt >= MAX_STEP:
+        if buffer[DT] >= MAX_STEP:
             self._step()
             attitude = None
         return self._estimate(t, attitude)

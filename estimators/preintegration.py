@@ -115,10 +115,13 @@ def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
 def imu_sample(buffer: np.ndarray, gyro: np.ndarray, accel: np.ndarray, have_gyro: bool, have_accel: bool,
                dt: float, gravity: float, gate: float, body_variance: float) -> tuple:
     """One IMU sample (body frame): gate its specific force, add the interval since the previous
-    sample (if dt > 0), remember the sample. `gate` is the largest squared body acceleration
-    accepted; a missing or rejected sample is replaced by the last one (the body acceleration of
-    the last good sample is held). Returns (status, qx, qy, qz, qw, roll, pitch, yaw) with the
-    attitude now."""
+    sample (if dt > 0), remember the sample. A reading is missing unless its `have_` flag is set
+    and it is finite. `gate` is the largest squared body acceleration accepted; a missing or
+    rejected sample is replaced by the last one (the body acceleration of the last good sample is
+    held). Returns (status, qx, qy, qz, qw, roll, pitch, yaw) with the attitude now."""
+    # The sum is finite only if every component is (as Estimator._to_body tests it).
+    have_gyro = have_gyro and math.isfinite(gyro[0] + gyro[1] + gyro[2])
+    have_accel = have_accel and math.isfinite(accel[0] + accel[1] + accel[2])
     qx, qy, qz, qw = current_attitude(buffer)
     up = (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
     status = MISSING

@@ -3,11 +3,14 @@
 import numpy as np
 
 from estimators import rotations as rot
+from estimators.base import Estimator
 from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FOOT0, _foot_nis
 from estimators.fusion import output_covariances
 from estimators.leg_odometry import StanceTracker
+from estimators.registry import make_estimator
 from estimators.terrain import TerrainFilter, plane_measurement
+from sensors.samples import ImuSample
 
 TERRAIN = TerrainEstimatorConfig(slope_random_walk=0.02, height_random_walk=0.01, change_gate_probability=0.9999)
 
@@ -85,3 +88,19 @@ def test_support_plane_from_feet_equals_the_plane_measurement_update():
             by_measurement.update(0.005 * k, measurement, covariance)
         assert np.array_equal(by_feet.x, by_measurement.x) and np.array_equal(by_feet.P, by_measurement.P)
         assert (by_feet.t, by_feet.restarts) == (by_measurement.t, by_measurement.restarts)
+
+
+def test_fusion_imu_path_equals_the_base_class_path(runs):
+    """FusionEstimator.update hands IMU samples to its kernel unchecked; Estimator.update checks
+    them first (None for a non-finite reading). Same estimates, bad readings included."""
+    samples = [s for s in runs.samples(0) if s.t < 1.0]
+    for k in range(300, 310):                      # bad readings once the filter runs
+        if isinstance(samples[k], ImuSample):
+            samples[k] = ImuSample(samples[k].t, np.array([np.nan, 1.0, np.inf]), samples[k].gyro)
+    for name in ("ekf", "ukf"):
+        fast, checked = make_estimator(name, runs.config), make_estimator(name, runs.config)
+        for sample in samples:
+            a, b = fast.update(sample), Estimator.update(checked, sample)
+            assert (a is None) == (b is None)
+            if a is not None:
+                assert all(np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y for x, y in zip(a, b))
