@@ -232,7 +232,7 @@ class FusionEstimator(Estimator):
         # Squared body acceleration beyond which a specific force sample is an outlier.
         self._accel_gate = self.accel_gate * self.noise.body_accel
         self.foot_gate = float(chi2.ppf(params.foot_gate_probability, 3))
-        self.legs = StanceTracker(geometry, params.stance_min_force)
+        self.legs = StanceTracker(geometry, params.stance_min_force, self.imu_position)
         self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
         # White accelerometer noise averaged over the window, and what a still body still shakes.
         self._still_variance = params.accel_noise_density**2 / params.still_window + params.still_force_std**2
@@ -419,11 +419,10 @@ class FusionEstimator(Estimator):
         reading = self.legs.read(sample.positions, rolling)
         if rolling is not None:
             self._body_turn[:] = 0.0
-        measured = reading.feet - self.imu_position
-        restart = reading.new
+        measured, restart = reading.measured, reading.new
         if len(reading.tracked):
-            used = self._correct_feet(reading.tracked, measured[reading.tracked], self.noise.foot_position,
-                                      self.foot_gate)
+            used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0),
+                                      self.noise.foot_position, self.foot_gate)
             if np.count_nonzero(used) < len(used):
                 # A foot whose kinematics disagree slipped (or read badly): start it again. When most
                 # of them disagree, the filter's velocity is wrong instead: reopen it too.
@@ -432,7 +431,7 @@ class FusionEstimator(Estimator):
                 restart = np.concatenate([restart, rejected])
                 if len(rejected) > len(used) // 2:
                     self._restart_velocity()
-        for leg in restart:
+        for leg in restart.tolist():
             self._restart_foot(leg, measured[leg])
         self.terrain.add_feet(sample.t, reading.feet, reading.measurable, self.state.q, self.params.foot_position_std,
                               self.foot_radius)

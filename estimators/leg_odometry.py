@@ -32,19 +32,22 @@ class Reading(NamedTuple):
     """One encoder sample seen by the tracker. The arrays are the tracker's own, rewritten by its
     next reading."""
     feet: np.ndarray          # (6, 3) foot centres in the body frame, from O_b; NaN rows for bad readings
+    measured: np.ndarray      # (6, 3) the same from the tracker's `origin`
     measurable: np.ndarray    # (6,) bool: down now and read by the encoders
     tracked: np.ndarray       # legs measurable with a valid filter state
     new: np.ndarray           # legs measurable without one (planted since the last reading)
 
 
 class StanceTracker:
-    def __init__(self, geometry: LegGeometry, min_force: float = 0.0):
+    def __init__(self, geometry: LegGeometry, min_force: float = 0.0, origin: np.ndarray | None = None):
         self.geometry = geometry
         self.min_force = min_force
+        self.origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=float)   # m, body frame
         self.contact = np.zeros(NUM_LEGS, dtype=bool)     # planted feet, from the latest foot sample
         self.tracked = np.zeros(NUM_LEGS, dtype=bool)     # feet whose filter state is valid
         self._previous_positions: np.ndarray | None = None
         self._feet = np.empty((NUM_LEGS, 3))
+        self._measured = np.empty((NUM_LEGS, 3))
         self._measurable = np.empty(NUM_LEGS, dtype=bool)
         self._legs = np.empty(NUM_LEGS, dtype=np.int64)     # tracked legs, then new ones
 
@@ -61,7 +64,7 @@ class StanceTracker:
                                  g.base_distance, g.femur, g.tibia)[0]
 
     def read(self, positions: np.ndarray, rolling: tuple[np.ndarray, np.ndarray, tuple, float] | None) -> Reading:
-        """`feet` and `measurable` of an encoder sample, with the measurable legs split into tracked
+        """`feet`, `measured` and `measurable` of an encoder sample, with the measurable legs split into tracked
         and new ones. With `rolling` = (filter_feet, body_turn, up, foot_radius), the tracked rows of
         the filter's foot states `filter_feet` (body frame) first move, in place, by how far their
         spheres rolled since the previous reading: each tibia's turn (`body_turn`, the body's
@@ -75,10 +78,10 @@ class StanceTracker:
         if rolling is not None:
             self._previous_positions = positions
         tracked_count, new_count = _read(positions, g.base_angle, g.base_distance, g.femur, g.tibia, self.contact,
-                                         self.tracked, roll, previous, filter_feet, body_turn, up, radius,
-                                         self._feet, self._measurable, self._legs)
+                                         self.tracked, roll, previous, filter_feet, body_turn, up, radius, self.origin,
+                                         self._feet, self._measured, self._measurable, self._legs)
         legs = self._legs
-        return Reading(self._feet, self._measurable, legs[:tracked_count],
+        return Reading(self._feet, self._measured, self._measurable, legs[:tracked_count],
                        legs[tracked_count:tracked_count + new_count])
 
 
@@ -89,7 +92,7 @@ _NO_ROLLING = (np.zeros((NUM_LEGS, 3)), np.zeros(3), (0.0, 0.0, 0.0), 0.0)
 # numpy calls (feet, rolling shift, masks, index lists) it cost 16 us a reading, against 4 us.
 @njit(cache=True)
 def _read(positions, base_angle, base_distance, a2, a3, contact, tracked, roll, previous, filter_feet, body_turn,
-          up, radius, feet_out, measurable_out, legs_out):
+          up, radius, origin, feet_out, measured_out, measurable_out, legs_out):
     if roll:
         shift = _rolling_shift(positions, previous, base_angle, body_turn, up, radius)
         for leg in range(NUM_LEGS):
@@ -98,6 +101,9 @@ def _read(positions, base_angle, base_distance, a2, a3, contact, tracked, roll, 
     feet = world_feet_arrays(_IDENTITY, _ORIGIN, _ORIGIN, _ORIGIN, positions, _NO_RATES, base_angle, base_distance,
                              a2, a3)[0]
     feet_out[:] = feet
+    for leg in range(NUM_LEGS):
+        for i in range(3):
+            measured_out[leg, i] = feet[leg, i] - origin[i]
     tracked_count = 0
     for leg in range(NUM_LEGS):
         measurable_out[leg] = contact[leg] and np.isfinite(feet[leg, 0]) and np.isfinite(feet[leg, 1]) \

@@ -48,7 +48,7 @@ def test_output_covariances_equal_the_numpy_products_bit_for_bit():
 
 def test_reading_matches_the_feet_and_their_masks(geometry):
     rng = np.random.default_rng(2)
-    tracker = StanceTracker(geometry)
+    tracker = StanceTracker(geometry, origin=np.array([0.01, -0.02, 0.03]))
     tracker.contact[:] = [True, True, False, True, True, True]
     tracker.tracked[:] = [True, False, False, True, False, True]
     positions = rng.uniform(-0.3, 0.3, 18)
@@ -57,6 +57,7 @@ def test_reading_matches_the_feet_and_their_masks(geometry):
     feet = tracker.feet(positions)
     measurable = tracker.contact & np.isfinite(feet).all(axis=1)
     assert np.array_equal(reading.feet, feet, equal_nan=True)
+    assert np.array_equal(reading.measured, feet - tracker.origin, equal_nan=True)
     assert np.array_equal(reading.measurable, measurable)
     assert list(reading.tracked) == [0, 3]
     assert list(reading.new) == [1, 4]
