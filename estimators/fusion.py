@@ -337,9 +337,9 @@ class FusionEstimator(Estimator):
         if dt <= 0:
             return
         mean_force = self._mean_force
-        *turn, turn_squared = interval_summary(self.pre.buffer, mean_force, self._body_turn)
+        fx, fy, fz, tx, ty, tz, turn_squared = interval_summary(self.pre.buffer, mean_force, self._body_turn)
         self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2
-        still_force = self.still.add(dt, turn, mean_force)
+        still_force = self.still.add(dt, (tx, ty, tz), (fx, fy, fz))
         self._predict()
         if still_force is not None:
             self._correct_specific_force(still_force + self.state.accel_bias, self._still_variance, self.accel_gate)
@@ -483,12 +483,12 @@ class FusionEstimator(Estimator):
 @njit(cache=True)
 def interval_summary(buffer: np.ndarray, mean_force: np.ndarray, body_turn: np.ndarray) -> tuple:
     """The preintegrated interval's mean specific force, written into `mean_force`, and the gyro's
-    rotation vector (without the filter's corrections), added to `body_turn`. Returns that turn
-    (x, y, z) and turn . turn."""
+    rotation vector (without the filter's corrections), added to `body_turn`. Returns both (x, y,
+    z each) and turn . turn."""
     mean_force[:] = buffer[DV] / buffer[DT]
     turn = np.array(rot.log((buffer[16], buffer[17], buffer[18], buffer[19])))
     body_turn += turn
-    return turn[0], turn[1], turn[2], turn @ turn
+    return mean_force[0], mean_force[1], mean_force[2], turn[0], turn[1], turn[2], turn @ turn
 
 
 # Compiled: as numpy calls on 3x3 blocks this took 18 us per step, a tenth of the filter's time.
