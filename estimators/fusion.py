@@ -67,6 +67,7 @@ VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (s
 MAX_STEP = 0.01                # s: without encoder samples, the filter steps on its own this often
 ZERO = np.zeros(3)
 ZERO33 = np.zeros((3, 3))
+FLOAT64 = np.dtype(np.float64)
 
 
 def foot(leg: int) -> slice:
@@ -291,7 +292,8 @@ class FusionEstimator(Estimator):
         # itself (1.4 of the 5 us an IMU sample took in a replay, three times that in the run loop).
         if type(sample) is ImuSample and self.state is not None and self._body_from_imu is None:
             gyro, accel = sample.gyro, sample.accel
-            if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,):
+            if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
+                    and gyro.dtype is FLOAT64 and accel.dtype is FLOAT64:
                 return self._update_imu(sample.t, gyro, accel)
         return super().update(sample)
 

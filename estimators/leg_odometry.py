@@ -52,8 +52,11 @@ class StanceTracker:
         self._legs = np.empty(NUM_LEGS, dtype=np.int64)     # tracked legs, then new ones
 
     def add_contacts(self, contact: np.ndarray, normal_forces: np.ndarray) -> None:
-        _add_contacts(np.asarray(contact, dtype=bool), np.asarray(normal_forces, dtype=float), self.min_force,
-                      self.contact, self.tracked)
+        contact, normal_forces = np.asarray(contact, dtype=bool), np.asarray(normal_forces, dtype=float)
+        if contact.shape != (NUM_LEGS,) or normal_forces.shape != (NUM_LEGS,):
+            raise ValueError(f"a foot sample needs {NUM_LEGS} contacts and forces, got {contact.shape}, "
+                             f"{normal_forces.shape}")
+        _add_contacts(contact, normal_forces, self.min_force, self.contact, self.tracked)
 
     def feet(self, positions: np.ndarray) -> np.ndarray:
         """(6, 3) foot centres in the body frame, from O_b; NaN rows for legs with a bad reading."""
