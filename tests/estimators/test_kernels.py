@@ -104,4 +104,5 @@ def test_fusion_imu_path_equals_the_base_class_path(runs):
             a, b = fast.update(sample), Estimator.update(checked, sample)
             assert (a is None) == (b is None)
             if a is not None:
-                assert all(np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y for x, y in zip(a, b))
+                assert all(np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y
+                           for x, y in zip(vars(a).values(), vars(b).values()))
