@@ -23,9 +23,9 @@ if TYPE_CHECKING:
     from testbed.config import Config
 
 
-@dataclass(frozen=True)
+@dataclass
 class Estimate:
-    """State of an estimator at time t. Arrays are owned by the estimate: do not modify them.
+    """State of an estimator at time t. Read-only by convention: do not modify it or its arrays.
 
     Attitude is world_from_body with a z-up world; roll, pitch and yaw are ZYX Euler angles
     (R = Rz(yaw) Ry(pitch) Rx(roll), scipy's `as_euler("ZYX")` reversed). Roll and pitch are with
@@ -33,6 +33,9 @@ class Estimate:
     Terrain roll and pitch are those of a body lying flat on the support plane with the robot's
     current heading; body height is the distance from the body origin O_b to that plane (the
     plane through the stance feet's contact points).
+
+    Not a frozen dataclass: its __init__ sets each field through object.__setattr__, 1.35 us for
+    this one against 0.28 us, and the fusion filters make one per IMU sample.
     """
     t: float                                   # s
     quaternion: np.ndarray                     # (4,) world_from_body, scipy order x, y, z, w

@@ -13,12 +13,14 @@ state and reset (Sola 2017, section 6).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, NominalState,
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_arrays,
                                inject_in_place)
 from estimators.linalg import inverse3, skew
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
@@ -88,10 +90,7 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
     accepted = np.zeros(n, dtype=np.bool_)
     count = 0
     for k in range(n):
-        b = FOOT0 + 3 * legs[k]
-        S = P[b:b + 3, b:b + 3] + variance * np.eye(3)
-        y = innovation[k]
-        accepted[k] = y @ np.linalg.solve(S, y) <= gate
+        accepted[k] = _foot_nis(P, FOOT0 + 3 * legs[k], variance, innovation[k]) <= gate
         count += accepted[k]
     dx[:] = 0.0
     tilt_cov[:] = 0.0
@@ -127,6 +126,35 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
 
 
 @njit(cache=True)
+def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, variance: float, gate: float, consider: bool,
+                 dx: np.ndarray, tilt_cov: np.ndarray, q: rot.Quaternion, bias: np.ndarray, velocity: np.ndarray,
+                 accel_bias: np.ndarray, accel_cross: np.ndarray, feet: np.ndarray) -> tuple:
+    """`update_feet` with the feet's kinematics `measured` ((n, 3), legs `legs`), then the
+    correction injected into the nominal state (its arrays in place). Returns (accepted, new q)."""
+    accepted = update_feet(P, measured - feet[legs], legs, variance, gate, consider, dx, tilt_cov)
+    if accepted.any():
+        q = inject_arrays(q, dx, bias, velocity, accel_bias, accel_cross, feet)
+    return accepted, q
+
+
+@njit(cache=True)
+def _foot_nis(P: np.ndarray, b: int, variance: float, y: np.ndarray) -> float:
+    """y^T S^-1 y, S = P[b:b+3, b:b+3] + variance I, through the Cholesky factor of S in closed
+    form: a LAPACK solve per foot cost more than the whole gate (S is symmetric positive definite;
+    the NIS agrees with np.linalg.solve's to a few ulps, and only decides the gate)."""
+    l00 = math.sqrt(P[b, b] + variance)
+    l10 = P[b + 1, b] / l00
+    l20 = P[b + 2, b] / l00
+    l11 = math.sqrt(P[b + 1, b + 1] + variance - l10 * l10)
+    l21 = (P[b + 2, b + 1] - l20 * l10) / l11
+    l22 = math.sqrt(P[b + 2, b + 2] + variance - l20 * l20 - l21 * l21)
+    z0 = y[0] / l00
+    z1 = (y[1] - l10 * z0) / l11
+    z2 = (y[2] - l20 * z0 - l21 * z1) / l22
+    return z0 * z0 + z1 * z1 + z2 * z2
+
+
+@njit(cache=True)
 def _symmetrise(P: np.ndarray) -> None:
     """P <- (P + P^T) / 2 in place (numba does not guard `P += P.T` against aliasing)."""
     for i in range(P.shape[0]):
@@ -154,10 +182,8 @@ class EkfEstimator(FusionEstimator):
 
     def _predict(self) -> None:
         state = self.state
-        velocity, feet = state.velocity.copy(), state.feet.copy()
-        q = predict(self.pre.buffer, velocity, feet, self.P, self._F, self._noise_rates, self._extra_noise(),
-                    self.gravity)
-        self.state = NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross)
+        state.q = predict(self.pre.buffer, state.velocity, state.feet, self.P, self._F, self._noise_rates,
+                          self._extra_noise(), self.gravity)
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)
@@ -171,11 +197,11 @@ class EkfEstimator(FusionEstimator):
         return self._correct(H, mean_force - predicted, variance, gate)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        dx, tilt_cov = self._dx, self._tilt_cov
-        accepted = update_feet(self.P, measured - self.state.feet[legs], legs, variance, gate,
-                               self.consider is not None, dx, tilt_cov)
-        if accepted.any():
-            inject_in_place(self.state, dx)
+        state, dx, tilt_cov = self.state, self._dx, self._tilt_cov
+        accepted, q = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx, tilt_cov,
+                                   state.q, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
+        if np.count_nonzero(accepted):
+            state.q = q
             self._record_tilt_correction(dx[THETA].copy(), tilt_cov.copy())
         return accepted
 

@@ -28,6 +28,7 @@ LAST_GYRO, LAST_ACCEL = slice(10, 13), slice(13, 16)                     # previ
 DQ, DV, DP = slice(16, 20), slice(20, 23), slice(23, 26)                 # increments since the step
 DT, EXTRA_VARIANCE = 26, 27                                              # s, (m/s)^2
 JACOBIANS = slice(28, 73)                                                # (5, 3, 3) d(dR, dv, dp)/d(b_g, b_a)
+GYRO_BIAS0, ACCEL_BIAS0, LAST_GYRO0, LAST_ACCEL0 = 4, 7, 10, 13                  # first elements
 BUFFER_SIZE = 73
 J_R, J_V_G, J_V_A, J_P_G, J_P_A = range(5)
 
@@ -80,23 +81,31 @@ def current_attitude(buffer: np.ndarray) -> tuple[float, float, float, float]:
 @njit(cache=True)
 def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: float) -> None:
     """Add one interval: bias-corrected mean rate (rad/s) and specific force (m/s^2)."""
+    # Element by element where numpy would make temporaries (the same operations in the same
+    # order, so the same bits): imu_sample runs at 1 kHz, and its 35 small arrays cost 0.6 us.
     J = buffer[JACOBIANS].reshape(5, 3, 3)
     R = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19])
     rotated = R @ accel
-    R_accel_skew = R @ skew3(accel[0], accel[1], accel[2])
+    accel_turn = R @ skew3(accel[0], accel[1], accel[2]) @ J[J_R]     # R [a]x J_R
     half_dt2 = 0.5 * dt * dt
-    # Position first: it reads the velocity terms before this interval (Forster eq. 59).
-    J[J_P_G] += J[J_V_G] * dt - half_dt2 * (R_accel_skew @ J[J_R])
-    J[J_P_A] += J[J_V_A] * dt - half_dt2 * R
-    J[J_V_G] -= dt * (R_accel_skew @ J[J_R])
-    J[J_V_A] -= dt * R
+    for i in range(3):
+        for j in range(3):
+            # Position first: it reads the velocity terms before this interval (Forster eq. 59).
+            J[J_P_G, i, j] += J[J_V_G, i, j] * dt - half_dt2 * accel_turn[i, j]
+            J[J_P_A, i, j] += J[J_V_A, i, j] * dt - half_dt2 * R[i, j]
+            J[J_V_G, i, j] -= dt * accel_turn[i, j]
+            J[J_V_A, i, j] -= dt * R[i, j]
     for i in range(3):
         buffer[23 + i] += buffer[20 + i] * dt + half_dt2 * rotated[i]
         buffer[20 + i] += rotated[i] * dt
     rx, ry, rz = rate[0] * dt, rate[1] * dt, rate[2] * dt
     sx, sy, sz, sw = step_quaternion(rx, ry, rz)
     # J_R <- Exp(w dt)^T J_R - Jr(w dt) dt, with Jr(phi) = I - [phi]x / 2 to first order.
-    J[J_R] = quaternion_matrix(sx, sy, sz, sw).T @ J[J_R] - dt * (np.eye(3) - 0.5 * skew3(rx, ry, rz))
+    turned = quaternion_matrix(sx, sy, sz, sw).T @ J[J_R]
+    step_skew = skew3(rx, ry, rz)
+    for i in range(3):
+        for j in range(3):
+            J[J_R, i, j] = turned[i, j] - dt * ((1.0 if i == j else 0.0) - 0.5 * step_skew[i, j])
     x, y, z, w = product(buffer[16], buffer[17], buffer[18], buffer[19], sx, sy, sz, sw)
     buffer[16], buffer[17], buffer[18], buffer[19] = x, y, z, w
     buffer[DT] += dt
@@ -106,29 +115,37 @@ def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
 def imu_sample(buffer: np.ndarray, gyro: np.ndarray, accel: np.ndarray, have_gyro: bool, have_accel: bool,
                dt: float, gravity: float, gate: float, body_variance: float) -> tuple:
     """One IMU sample (body frame): gate its specific force, add the interval since the previous
-    sample (if dt > 0), remember the sample. `gate` is the largest squared body acceleration
-    accepted. Returns (status, qx, qy, qz, qw, roll, pitch, yaw) with the attitude now."""
+    sample (if dt > 0), remember the sample. A reading is missing unless its `have_` flag is set
+    and it is finite. `gate` is the largest squared body acceleration accepted; a missing or
+    rejected sample is replaced by the last one (the body acceleration of the last good sample is
+    held). Returns (status, qx, qy, qz, qw, roll, pitch, yaw) with the attitude now."""
+    # The sum is finite only if every component is (as Estimator._to_body tests it).
+    have_gyro = have_gyro and math.isfinite(gyro[0] + gyro[1] + gyro[2])
+    have_accel = have_accel and math.isfinite(accel[0] + accel[1] + accel[2])
     qx, qy, qz, qw = current_attitude(buffer)
-    gyro_now = gyro if have_gyro else buffer[LAST_GYRO].copy()
-    expected = buffer[ACCEL_BIAS] + gravity * np.array([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx),
-                                                         1 - 2 * (qx * qx + qy * qy)])
+    up = (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
     status = MISSING
-    accel_now = buffer[LAST_ACCEL].copy()     # the body acceleration of the last good sample, held
     if have_accel:
-        excess = accel - expected
-        if excess[0] * excess[0] + excess[1] * excess[1] + excess[2] * excess[2] <= gate:
-            status, accel_now = ACCEPTED, accel
-        else:
-            status = REJECTED
+        excess = 0.0
+        for i in range(3):
+            e = accel[i] - (buffer[ACCEL_BIAS0 + i] + gravity * up[i])
+            excess += e * e
+        status = ACCEPTED if excess <= gate else REJECTED
     if dt > 0:
-        rate = 0.5 * (buffer[LAST_GYRO] + gyro_now) - buffer[GYRO_BIAS]
-        mean_accel = 0.5 * (buffer[LAST_ACCEL] + accel_now) - buffer[ACCEL_BIAS]
+        rate, mean_accel = np.empty(3), np.empty(3)
+        for i in range(3):
+            gyro_now = gyro[i] if have_gyro else buffer[LAST_GYRO0 + i]
+            accel_now = accel[i] if status == ACCEPTED else buffer[LAST_ACCEL0 + i]
+            rate[i] = 0.5 * (buffer[LAST_GYRO0 + i] + gyro_now) - buffer[GYRO_BIAS0 + i]
+            mean_accel[i] = 0.5 * (buffer[LAST_ACCEL0 + i] + accel_now) - buffer[ACCEL_BIAS0 + i]
         _preintegrate(buffer, rate, mean_accel, dt)
         if status != ACCEPTED:
             buffer[EXTRA_VARIANCE] += body_variance * dt * dt
         qx, qy, qz, qw = current_attitude(buffer)
-    buffer[LAST_GYRO] = gyro_now
-    buffer[LAST_ACCEL] = accel_now
+    if have_gyro:
+        buffer[LAST_GYRO] = gyro
+    if status == ACCEPTED:
+        buffer[LAST_ACCEL] = accel
     roll, pitch, yaw = euler(qx, qy, qz, qw)
     return status, qx, qy, qz, qw, roll, pitch, yaw
 
@@ -140,6 +157,22 @@ def euler(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return roll, pitch, yaw
+
+
+# Compiled: one call per filter step instead of five numpy slice assignments (2.4 -> 0.7 us).
+@njit(cache=True)
+def _start(buffer: np.ndarray, q: tuple, gyro_bias: np.ndarray, accel_bias: np.ndarray) -> None:
+    for i in range(4):
+        buffer[i] = q[i]
+    buffer[GYRO_BIAS] = gyro_bias
+    buffer[ACCEL_BIAS] = accel_bias
+    _reset(buffer)
+
+
+@njit(cache=True)
+def _reset(buffer: np.ndarray) -> None:
+    buffer[16:BUFFER_SIZE] = 0.0
+    buffer[19] = 1.0
 
 
 class Preintegration:
@@ -165,14 +198,10 @@ class Preintegration:
 
     def start(self, q: tuple, gyro_bias: np.ndarray, accel_bias: np.ndarray) -> None:
         """A new interval from the nominal state of a step."""
-        self.buffer[Q0] = q
-        self.buffer[GYRO_BIAS] = gyro_bias
-        self.buffer[ACCEL_BIAS] = accel_bias
-        self.reset()
+        _start(self.buffer, q, gyro_bias, accel_bias)
 
     def reset(self) -> None:
-        self.buffer[16:BUFFER_SIZE] = 0.0
-        self.buffer[19] = 1.0
+        _reset(self.buffer)
 
     def remember(self, gyro: np.ndarray | None, accel: np.ndarray | None) -> None:
         if gyro is not None:

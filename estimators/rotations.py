@@ -9,6 +9,9 @@ Conventions, used by every estimator:
   positive roll;
 - attitude errors are local (body-frame) rotation vectors: R_true = R_est Exp(dtheta)
   (Sola 2017, "Quaternion kinematics for the error-state Kalman filter", section 4.1 and 5).
+
+The single-rotation helpers are `register_jitable`: plain Python when called from Python, and
+compiled into the filters' numba kernels that call them (one source for both).
 """
 
 from __future__ import annotations
@@ -16,12 +19,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.extending import register_jitable
 
 Quaternion = tuple[float, float, float, float]
 
 IDENTITY: Quaternion = (0.0, 0.0, 0.0, 1.0)
 
 
+@register_jitable
 def multiply(p: Quaternion, q: Quaternion) -> Quaternion:
     """Hamilton product p * q (Sola 2017, eq. 12), scalar last."""
     px, py, pz, pw = p
@@ -36,6 +41,7 @@ def conjugate(q: Quaternion) -> Quaternion:
     return (-q[0], -q[1], -q[2], q[3])
 
 
+@register_jitable
 def normalized(q: Quaternion) -> Quaternion:
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if not norm > 0 or not math.isfinite(norm):
@@ -44,6 +50,7 @@ def normalized(q: Quaternion) -> Quaternion:
     return (sign * q[0] / norm, sign * q[1] / norm, sign * q[2] / norm, sign * q[3] / norm)
 
 
+@register_jitable
 def exp(rx: float, ry: float, rz: float) -> Quaternion:
     """Quaternion of the rotation vector (rx, ry, rz) (Sola 2017, eq. 101)."""
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
@@ -53,6 +60,7 @@ def exp(rx: float, ry: float, rz: float) -> Quaternion:
     return (s * rx, s * ry, s * rz, math.cos(0.5 * angle))
 
 
+@register_jitable
 def log(q: Quaternion) -> tuple[float, float, float]:
     """Rotation vector of the quaternion q, angle in [0, pi] (Sola 2017, eq. 105)."""
     x, y, z, w = q
@@ -65,11 +73,13 @@ def log(q: Quaternion) -> tuple[float, float, float]:
     return (scale * x, scale * y, scale * z)
 
 
+@register_jitable
 def rotate_by_vector(q: Quaternion, rx: float, ry: float, rz: float) -> Quaternion:
     """q * Exp(r): q followed by a body-frame rotation r, normalised."""
     return normalized(multiply(q, exp(rx, ry, rz)))
 
 
+@register_jitable
 def to_matrix(q: Quaternion) -> np.ndarray:
     """3x3 rotation matrix of the quaternion (Sola 2017, eq. 115)."""
     x, y, z, w = q
@@ -80,6 +90,7 @@ def to_matrix(q: Quaternion) -> np.ndarray:
     ])
 
 
+@register_jitable
 def up_in_body(q: Quaternion) -> tuple[float, float, float]:
     """R^T e_z: the world's up direction in the body frame (third row of R)."""
     x, y, z, w = q
@@ -105,6 +116,7 @@ def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> Quaternion:
                        cr * cp * cy + sr * sp * sy))
 
 
+@register_jitable
 def euler_jacobian(roll: float, pitch: float) -> np.ndarray:
     """d(roll, pitch, yaw) / d(dtheta) for a local error R Exp(dtheta).
 
