@@ -102,8 +102,14 @@ def euler_from_quaternion(q: Quaternion) -> tuple[float, float, float]:
     x, y, z, w = q
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
+    return roll, pitch, yaw_of(q)
+
+
+@register_jitable
+def yaw_of(q: Quaternion) -> float:
+    """The yaw of euler_from_quaternion alone."""
+    x, y, z, w = q
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> Quaternion:

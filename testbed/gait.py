@@ -209,11 +209,16 @@ def _progress(phase, duty, period, lead, out):
 
 
 @njit(cache=True)
+def _ground_velocity(x, y, vx, vy, wz):
+    """(x, y) velocity of the body over the ground at the point (x, y), body frame: v + w x p."""
+    return vx - wz * y, vy + wz * x
+
+
+@njit(cache=True)
 def _foot_velocity(feet, vx, vy, wz):
     velocity = np.zeros((len(feet), 3))
     for leg in range(len(feet)):
-        velocity[leg, 0] = vx - wz * feet[leg, 1]
-        velocity[leg, 1] = vy + wz * feet[leg, 0]
+        velocity[leg, 0], velocity[leg, 1] = _ground_velocity(feet[leg, 0], feet[leg, 1], vx, vy, wz)
     return velocity
 
 
@@ -228,7 +233,7 @@ def _move_stance(feet, stance, vx, vy, wz, dt):
     # A stance foot is fixed on the ground: in the body frame it moves against the body twist.
     for leg in range(6):
         if stance[leg]:
-            velocity_x, velocity_y = vx - wz * feet[leg, 1], vy + wz * feet[leg, 0]
+            velocity_x, velocity_y = _ground_velocity(feet[leg, 0], feet[leg, 1], vx, vy, wz)
             feet[leg, 0] -= velocity_x * dt
             feet[leg, 1] -= velocity_y * dt
 
@@ -341,8 +346,8 @@ def _hold_blocked(liftoff, blocked, progress, touchdown, feet, vx, vy, wz, dt):
     held: once clear, it goes on to its touch-down point without a jump."""
     for leg in range(6):
         if blocked[leg]:
-            held_x = feet[leg, 0] - (vx - wz * feet[leg, 1]) * dt
-            held_y = feet[leg, 1] - (vy + wz * feet[leg, 0]) * dt
+            velocity_x, velocity_y = _ground_velocity(feet[leg, 0], feet[leg, 1], vx, vy, wz)
+            held_x, held_y = feet[leg, 0] - velocity_x * dt, feet[leg, 1] - velocity_y * dt
             blend = _swing_blend(progress[leg])
             liftoff[leg, 0] = (held_x - touchdown[leg, 0] * blend) / (1.0 - blend)
             liftoff[leg, 1] = (held_y - touchdown[leg, 1] * blend) / (1.0 - blend)

@@ -241,34 +241,14 @@ class GyroHeading:
 @njit(cache=True)
 def _turn(attitude, body_from_sensor, gyro, bias, dt):
     """(whether the rate is finite, the new yaw): `attitude` (x, y, z, w) followed, in place, by the
-    body-frame rotation (body_from_sensor gyro - bias) dt. The operations of numpy's `@` and of
-    estimators.rotations.rotate_by_vector and the yaw of euler_from_quaternion in the same order,
-    so the same numbers to the last bit (tests/testbed/test_odometry_and_stability.py compares them)."""
+    body-frame rotation (body_from_sensor gyro - bias) dt: numpy's `@` in its order, then
+    estimators.rotations' own helpers (compiled in), so the same numbers to the last bit
+    (tests/testbed/test_odometry_and_stability.py compares them)."""
     rate = matrix_times_vector(body_from_sensor, gyro, np.empty(3))
     for axis in range(3):
         if not math.isfinite(rate[axis]):
             return False, 0.0
     rx, ry, rz = (rate[0] - bias[0]) * dt, (rate[1] - bias[1]) * dt, (rate[2] - bias[2]) * dt
-    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle < 1e-8:
-        qx, qy, qz, qw = _normalized(0.5 * rx, 0.5 * ry, 0.5 * rz, 1.0)
-    else:
-        scale = math.sin(0.5 * angle) / angle
-        qx, qy, qz, qw = scale * rx, scale * ry, scale * rz, math.cos(0.5 * angle)
-    px, py, pz, pw = attitude[0], attitude[1], attitude[2], attitude[3]
-    x, y, z, w = _normalized(pw * qx + px * qw + py * qz - pz * qy,
-                             pw * qy - px * qz + py * qw + pz * qx,
-                             pw * qz + px * qy - py * qx + pz * qw,
-                             pw * qw - px * qx - py * qy - pz * qz)
-    attitude[0], attitude[1], attitude[2], attitude[3] = x, y, z, w
-    return True, math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-@njit(cache=True)
-def _normalized(x, y, z, w):
-    """estimators.rotations.normalized: unit length, w >= 0; the identity for a zero or broken q."""
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if not norm > 0 or not math.isfinite(norm):
-        return 0.0, 0.0, 0.0, 1.0
-    sign = 1.0 if w >= 0 else -1.0
-    return sign * x / norm, sign * y / norm, sign * z / norm, sign * w / norm
+    turned = rot.rotate_by_vector((attitude[0], attitude[1], attitude[2], attitude[3]), rx, ry, rz)
+    attitude[0], attitude[1], attitude[2], attitude[3] = turned
+    return True, rot.yaw_of(turned)

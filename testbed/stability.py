@@ -26,23 +26,16 @@ def stability_margin(polygon: np.ndarray, com_xy: np.ndarray) -> float:
     return _margin(np.ascontiguousarray(polygon, dtype=float).reshape(-1, 2), float(com_xy[0]), float(com_xy[1]))
 
 
-def debounced_support(last_touch: np.ndarray, contact: np.ndarray, t: float, feet: np.ndarray, com_xy: np.ndarray,
-                      debounce: float, resting: np.ndarray) -> tuple[np.ndarray, float]:
-    """The support polygon of the feet touching the ground now or within `debounce` s, or
-    `resting` (6,) bool on it, and the centre of mass's margin in it, in one compiled call:
-    `last_touch` (6,) holds each foot's latest touch time and is updated in place from `contact`
-    (6,) bool at time t; `feet` (6, 3)."""
-    polygon, margin, _ = stance_support(last_touch, contact, np.ones(len(feet), np.bool_), t, feet, com_xy, debounce,
-                                        resting)
-    return polygon, margin
-
-
 @njit(cache=True)
 def stance_support(last_touch: np.ndarray, contact: np.ndarray, swinging: np.ndarray, t: float, feet: np.ndarray,
                    com: np.ndarray, debounce: float, resting: np.ndarray) -> tuple[np.ndarray, float, int]:
-    """`debounced_support`, and the stance feet (not `swinging`) that neither touch the ground nor
-    touched it within `debounce`, as bits (leg i: 1 << i): the feet whose `resting` the caller may
-    want to know (all False in a first call) before asking again. `com` is read at [0] and [1]."""
+    """The support polygon of the feet touching the ground now or within `debounce` s, or
+    `resting` (6,) bool on it, and the centre of mass's margin in it, in one compiled call:
+    `last_touch` (6,) holds each foot's latest touch time and is updated in place from `contact`
+    (6,) bool at time t; `feet` (6, 3); `com` is read at [0] and [1]. Third, the stance feet (not
+    `swinging`) that neither touch the ground nor touched it within `debounce`, as bits (leg i:
+    1 << i): the feet whose `resting` the caller may want to know (all False in a first call)
+    before asking again."""
     supporting = np.empty(len(feet), np.bool_)
     late = 0
     for leg in range(len(feet)):

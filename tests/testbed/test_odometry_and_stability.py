@@ -6,7 +6,7 @@ import pytest
 from testbed import config
 from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.stability import debounced_support, stability_margin, support_polygon
+from testbed.stability import stability_margin, stance_support, support_polygon
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -71,20 +71,22 @@ def test_support_polygon_and_margin():
     assert stability_margin(np.empty((0, 2)), np.zeros(2)) == -np.inf
 
 
-def test_debounced_support_keeps_recent_touches_and_matches_the_separate_functions():
+def test_stance_support_keeps_recent_touches_and_matches_the_separate_functions():
     rng = np.random.default_rng(4)
     last_touch = np.full(6, -np.inf)
     for step in range(200):
         t = 0.001 * step
         feet, com = rng.normal(0.0, 0.2, (6, 3)), rng.normal(0.0, 0.05, 3)
-        contact, resting = rng.random(6) < 0.4, rng.random(6) < 0.1
+        contact, resting, swinging = rng.random(6) < 0.4, rng.random(6) < 0.1, rng.random(6) < 0.5
         before = last_touch.copy()
-        polygon, margin = debounced_support(last_touch, contact, t, feet, com[:2], 0.005, resting)
-        supporting = contact | resting | (t - before <= 0.005)
+        polygon, margin, late = stance_support(last_touch, contact, swinging, t, feet, com, 0.005, resting)
+        recent = contact | (t - before <= 0.005)
+        supporting = recent | resting
         expected = support_polygon(feet[supporting, :2])
         np.testing.assert_array_equal(polygon, expected)
         assert margin == stability_margin(expected, com[:2])
         np.testing.assert_array_equal(last_touch, np.where(contact, t, before))
+        assert late == sum(1 << leg for leg in range(6) if not (swinging[leg] or recent[leg]))
 
 
 def test_odometry_rotates_leg_displacements_by_the_given_heading():
