@@ -223,11 +223,6 @@ class TerrainFilter:
         self.restarts += status == RESTARTED
         self._output = None
 
-    def covariance_at(self, t: float) -> np.ndarray:
-        covariance = self.P.copy()
-        covariance.flat[::4] += self.q * max(0.0, t - self.t)
-        return covariance
-
     def heading_output(self, yaw: float) -> tuple[float, float, float, np.ndarray, np.ndarray]:
         """(terrain_roll, terrain_pitch, body_height, covariance, growth) seen from heading `yaw`:
         the covariance at the last update and its growth per second since (`grown_covariance`).
