@@ -1,42 +1,79 @@
-"""An MCAP writer that takes its messages in batches.
+"""An MCAP writer that takes its messages in batches, and can compress and write its chunks on a
+thread of their own.
 
 mcap's `Writer.add_message` builds a Message record object and writes it field by field (seven
 writes, two seeks), then updates the statistics and the chunk's index one message at a time: about
 7 us a message, which at five messages per physics step was most of the recording's cost.
 `BatchWriter.add_messages` writes the same records with one `struct.pack` each and updates the
-statistics once per batch. The file is the same, byte for byte (tests/datasets/test_mcap_batch.py
-holds it to that), so every MCAP reader reads it as before.
+statistics once per batch; `add_records` takes records already laid out (`datasets.batch_encode`).
 
-It reaches into two private attributes of mcap's Writer (its chunk builder and its statistics);
-the byte-for-byte test is what guards that against a change of the mcap package.
+With `background=True` a finished chunk is compressed, written and flushed to the file by a writer
+thread (zstd's compression, the CRC and the file writes release the GIL, so on a second core they
+overlap with the caller's work). Chunks are handed over one batch at a time, in order: handing
+over the next batch, and every other write to the file (metadata, attachments, the summary), first
+waits for the previous one to be on the file, so the writer thread owns the file from a handover
+to that wait and nothing else touches it meanwhile. An error of the writer thread is raised in
+the caller's thread by that wait (and by every later one: the file is not written any further).
+The thread is not a daemon: a process whose main thread ends without closing the writer still
+writes the chunks it handed over.
+
+The file is the same, byte for byte, either way (tests/datasets/test_mcap_batch.py holds it to
+mcap's Writer), so every MCAP reader reads it as before. It reaches into private attributes of
+mcap's Writer (its chunk builder, statistics, chunk indexes and settings, and the chunk
+finalisation that it overrides); the byte-for-byte test is what guards that against a change of
+the mcap package.
 """
 
 from __future__ import annotations
 
 import struct
+import threading
+import zlib
 from collections import Counter
 from itertools import islice
 from operator import itemgetter
 
+import numpy as np
+from numba import njit
 from mcap._chunk_builder import ChunkBuilder
 from mcap.opcode import Opcode
-from mcap.records import Message, MessageIndex
-from mcap.writer import Writer
+from mcap.records import ChunkIndex, Message, MessageIndex
+from mcap.writer import CompressionType, IndexType, Writer
+
+try:
+    import lz4.frame  # type: ignore
+except ImportError:         # as mcap's Writer: refused there unless installed
+    lz4 = None
+try:
+    import zstandard
+except ImportError:
+    zstandard = None
 
 # A Message record: opcode, record length, channel id, sequence, log time, publish time, then the data.
 MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 MESSAGE_FIELDS_SIZE = MESSAGE_HEADER.size - 9       # the record length counts what follows opcode and length
+# A Chunk record up to its compression's name: opcode, record length, start and end times,
+# uncompressed size and CRC, the name's length.
+CHUNK_HEADER = struct.Struct("<BQQQQII")
 
 
 class BatchWriter(Writer):
-    """mcap's Writer (chunked) with `add_messages`; every other method is the Writer's."""
+    """mcap's Writer (chunked) with `add_messages` and `add_records`, its chunks finished on a
+    writer thread if `background`; every other method is the Writer's. `wait()` returns when every
+    chunk handed over is on the file."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, background: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
         if self._Writer__chunk_builder is None:
             raise ValueError("BatchWriter writes chunked files only")
         self._Writer__chunk_builder = BatchChunkBuilder()
         self._chunk_size_limit = self._Writer__chunk_size
+        self._background = background
+        self._finished: list[tuple] = []        # chunks finished, not yet handed to the writer thread
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    # --- messages -----------------------------------------------------------------------------
 
     def add_messages(self, messages: list[tuple[int, int, bytes, int]]) -> None:
         """(channel id, log time, data, sequence) messages, each published at its log time: the
@@ -51,6 +88,30 @@ class BatchWriter(Writer):
             if builder.count > limit:
                 self._Writer__finalize_chunk()
 
+    def add_records(self, records, ends: np.ndarray, channels: np.ndarray, log_times: np.ndarray) -> None:
+        """Message records laid out one after the other in `records` (a bytes-like object), the
+        i-th ending at `ends[i]` (int64 array), of channel `channels[i]` and log time `log_times[i]`
+        (each message published at its log time): the same as `add_message` of each in turn."""
+        count = len(ends)
+        if not count:
+            return
+        if channels.min() < 1 or channels.max() > 0xFFFF or log_times.min() < 0:
+            raise ValueError("channel ids are 16-bit and non-zero, log times unsigned")
+        statistics = self._Writer__statistics
+        first, last = int(log_times.min()), int(log_times.max())
+        if statistics.message_count:
+            first = min(first, statistics.message_start_time)
+        statistics.message_start_time = first
+        statistics.message_end_time = max(last, statistics.message_end_time)
+        statistics.message_count += count
+        builder, limit = self._Writer__chunk_builder, self._chunk_size_limit
+        counts = statistics.channel_message_counts      # its order is the file's: that of first appearance
+        start = 0
+        while start < count:
+            start = builder.add_laid_out(records, ends, channels, log_times, start, limit, counts)
+            if builder.count > limit:
+                self._Writer__finalize_chunk()
+
     def _count(self, messages: list[tuple[int, int, bytes, int]]) -> None:
         statistics = self._Writer__statistics
         log_times = list(map(itemgetter(1), messages))
@@ -62,6 +123,104 @@ class BatchWriter(Writer):
         statistics.message_count += len(messages)
         for channel, count in Counter(map(itemgetter(0), messages)).items():
             statistics.channel_message_counts[channel] += count
+
+    # --- chunks and the file ------------------------------------------------------------------
+
+    def flush(self) -> None:
+        """Finish the chunk in progress and put it on the file, flushed; in the background, hand
+        it (and any chunk finished before it) to the writer thread and return."""
+        self._Writer__finalize_chunk()
+        if self._background:
+            self._hand_over()
+        else:
+            super().flush()
+
+    def finish(self) -> None:
+        """mcap's Writer's `finish`, the last chunks written first (the data end record holds the
+        CRC of everything before it)."""
+        self._Writer__finalize_chunk()
+        self._Writer__flush()
+        super().finish()
+
+    def wait(self) -> None:
+        """Return when every chunk handed to the writer thread is on the file; raise its error if
+        it failed."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            raise self._error
+
+    def _Writer__flush(self) -> None:
+        """mcap's Writer writes through here (metadata, attachments, the summary): first the
+        chunks finished before, in order."""
+        self.wait()
+        if self._finished:
+            self._write_chunks(self._finished)
+            self._finished = []
+        Writer._Writer__flush(self)
+
+    def _Writer__finalize_chunk(self) -> None:
+        """mcap's Writer's `__finalize_chunk`, its compression and writes left to `_write_chunks`
+        (at the next flush, here or on the writer thread)."""
+        builder = self._Writer__chunk_builder
+        if builder.num_messages == 0:
+            return
+        self._Writer__statistics.chunk_count += 1
+        indexes = []
+        if self._Writer__index_types & IndexType.MESSAGE:
+            indexes = [(channel, index.packed()) for channel, index in builder.message_indices.items()]
+        self._finished.append((builder.end(), builder.message_start_time, builder.message_end_time, indexes))
+        builder.reset()
+
+    def _hand_over(self) -> None:
+        self.wait()
+        if not self._finished:
+            return
+        chunks, self._finished = self._finished, []
+        self._thread = threading.Thread(target=self._write_in_background, args=(chunks,), name="mcap-writer")
+        self._thread.start()
+
+    def _write_in_background(self, chunks: list[tuple]) -> None:
+        try:
+            self._write_chunks(chunks)
+            self._Writer__stream.flush()
+        except BaseException as error:      # raised in the caller's thread by `wait`
+            self._error = error
+
+    def _write_chunks(self, chunks: list[tuple]) -> None:
+        """Compress and write finished chunks, each followed by its message indexes, as mcap's
+        Writer does, and add their chunk indexes."""
+        stream = self._Writer__stream
+        compression_type = self._Writer__compression
+        for data, start_time, end_time, indexes in chunks:
+            if compression_type == CompressionType.LZ4:
+                compression, compressed = "lz4", lz4.frame.compress(data)
+            elif compression_type == CompressionType.ZSTD:
+                compression, compressed = "zstd", zstandard.compress(data)
+            else:
+                compression, compressed = "", data
+            crc = zlib.crc32(data) if self._Writer__enable_crcs else 0
+            name = compression.encode()
+            header = CHUNK_HEADER.pack(Opcode.CHUNK, CHUNK_HEADER.size - 9 + len(name) + 8 + len(compressed),
+                                       start_time, end_time, len(data), crc, len(name)) + name
+            header += struct.pack("<Q", len(compressed))
+            chunk_start = stream.tell()
+            chunk_length = len(header) + len(compressed)
+            offsets, position = {}, chunk_start + chunk_length
+            for channel, packed in indexes:
+                offsets[channel] = position
+                position += len(packed)
+            written = [header, compressed, *(packed for _, packed in indexes)]
+            if self._Writer__enable_data_crcs:
+                for part in written:
+                    self._Writer__data_section_crc = zlib.crc32(part, self._Writer__data_section_crc)
+            stream.write(b"".join(written))
+            self._Writer__chunk_indices.append(ChunkIndex(
+                message_start_time=start_time, message_end_time=end_time, chunk_start_offset=chunk_start,
+                chunk_length=chunk_length, message_index_offsets=offsets,
+                message_index_length=position - chunk_start - chunk_length, compression=compression,
+                compressed_size=len(compressed), uncompressed_size=len(data)))
 
 
 class BatchChunkBuilder(ChunkBuilder):
@@ -91,12 +250,38 @@ class BatchChunkBuilder(ChunkBuilder):
                 break
         buffer.write(b"".join(records))
         added = list(map(itemgetter(1), islice(messages, start, end)))
-        first, last = min(added), max(added)
+        self._times(min(added), max(added), end - start)
+        return end
+
+    def add_laid_out(self, records, ends: np.ndarray, channels: np.ndarray, log_times: np.ndarray, start: int,
+                     size_limit: int, counts: dict[int, int]) -> int:
+        """`BatchWriter.add_records`' messages from `start` on, until the chunk grows past
+        `size_limit` bytes; returns the index after the last message added. Adds each channel's
+        messages to `counts`."""
+        buffer = self.record_writer._buffer
+        offset = buffer.tell()
+        begin = int(ends[start - 1]) if start else 0
+        # the first message whose record takes the chunk past the limit is the last one added
+        end = int(np.searchsorted(ends, size_limit - offset + begin, side="right")) + 1
+        end = min(max(end, start + 1), len(ends))
+        buffer.write(memoryview(records)[begin:int(ends[end - 1])])
+        present, bounds, entries = _index_entries(channels[start:end], log_times[start:end], ends[start:end], begin,
+                                                  offset)
+        indices = self.message_indices
+        for at, channel in enumerate(present.tolist()):
+            index = indices.get(channel)
+            if index is None:
+                index = indices[channel] = PackedMessageIndex(channel_id=channel, records=[])
+            index.add_entries(entries[bounds[at]:bounds[at + 1]])
+            counts[channel] += int(bounds[at + 1] - bounds[at])
+        self._times(int(log_times[start:end].min()), int(log_times[start:end].max()), end - start)
+        return end
+
+    def _times(self, first: int, last: int, count: int) -> None:
         if self.num_messages:
             first, last = min(first, self.message_start_time), max(last, self.message_end_time)
         self.message_start_time, self.message_end_time = first, last
-        self.num_messages += end - start
-        return end
+        self.num_messages += count
 
     def _add(self, channel: int, log_time: int, data: bytes, sequence: int, publish_time: int) -> None:
         if self.num_messages == 0:
@@ -114,10 +299,62 @@ class BatchChunkBuilder(ChunkBuilder):
         buffer.write(data)
 
 
+@njit(cache=True)
+def _index_entries(channels, log_times, ends, begin, offset):
+    """The message index entries of consecutive records ending at `ends`, the first starting at
+    `begin`, moved to start at `offset` in the chunk: channel by channel in order of first
+    appearance, the channels, where each one's entries start (and end) in `entries`, and the
+    (log time, offset) entries."""
+    count = len(channels)
+    slot = np.full(0x10000, -1, np.int64)
+    present = np.empty(count, np.int64)
+    sizes = np.zeros(count + 1, np.int64)
+    kinds = 0
+    for message in range(count):
+        channel = channels[message]
+        if slot[channel] < 0:
+            slot[channel] = kinds
+            present[kinds] = channel
+            kinds += 1
+        sizes[slot[channel] + 1] += 1
+    bounds = np.cumsum(sizes[:kinds + 1])
+    filled = bounds[:kinds].copy()
+    entries = np.empty((count, 2), np.uint64)
+    for message in range(count):
+        at = slot[channels[message]]
+        entries[filled[at], 0] = log_times[message]
+        entries[filled[at], 1] = offset + (ends[message - 1] - begin if message else 0)
+        filled[at] += 1
+    return present[:kinds], bounds, entries
+
+
 class PackedMessageIndex(MessageIndex):
-    """mcap's MessageIndex record written with one struct.pack for all its entries."""
+    """mcap's MessageIndex record written with one struct.pack for all its entries. Entries come
+    as (log time, offset) pairs in `records`, or as arrays from `add_entries`, kept as they are
+    until packed."""
+
+    _parts: list[np.ndarray] | None = None      # entries before those in `records`, (n, 2) arrays
+
+    def add_entries(self, entries: np.ndarray) -> None:
+        """(n, 2) uint64 (log time, offset) entries, after those added before."""
+        self._parts_so_far().append(entries)
+
+    def _parts_so_far(self) -> list[np.ndarray]:
+        if self._parts is None:
+            self._parts = []
+        if self.records:
+            self._parts.append(np.array(self.records, "<u8").reshape(-1, 2))
+            self.records = []
+        return self._parts
+
+    def packed(self) -> bytes:
+        """The record: opcode, length, channel id, the entries' length, the entries."""
+        if self._parts is None:
+            entries = [value for entry in self.records for value in entry]
+            return struct.pack(f"<BQHI{len(entries)}Q", Opcode.MESSAGE_INDEX, 6 + 8 * len(entries), self.channel_id,
+                               8 * len(entries), *entries)
+        data = b"".join(self._parts_so_far())
+        return struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + len(data), self.channel_id, len(data)) + data
 
     def write(self, stream) -> None:
-        entries = [value for entry in self.records for value in entry]
-        stream.write(struct.pack(f"<BQHI{len(entries)}Q", Opcode.MESSAGE_INDEX, 6 + 8 * len(entries), self.channel_id,
-                                 8 * len(entries), *entries))
+        stream.write(self.packed())

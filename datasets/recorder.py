@@ -4,11 +4,16 @@
   with the final name is always complete.
 - `record` only keeps the tick (its arrays are new at every step, never modified afterwards);
   every `flush_period` of simulated time the pending ticks are serialised, all in one loop, and go
-  to the writer, which closes a compressed chunk and flushes it to disk.
-  A process killed outright therefore leaves a `.partial` file whose chunks up to the last flush
-  are readable (`datasets.reader` recovers them).
+  to the writer, which closes a chunk and hands it to its writer thread (`datasets.mcap_batch`):
+  that thread compresses it, writes it and flushes it to disk while the run goes on.
+  A process killed outright therefore leaves a `.partial` file whose chunks are readable up to
+  the last flush, less the one chunk that the writer thread may still have been writing
+  (`datasets.reader` recovers them). A process whose main thread ends without `finish` (an
+  exception) still writes every chunk handed over.
 - Ctrl-C cannot land inside a write (`datasets.signals`); `finish`, which the run loop calls
-  after an interrupt or a divergence too, writes what is pending, the metrics and the summary.
+  after an interrupt or a divergence too, writes what is pending, waits for the writer thread,
+  and writes the metrics and the summary. An error of the writer thread (a full disk) is raised
+  by the next flush or by `finish`.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every
   occurrence; the heavy truth (state, contacts, support polygon) and the commands every
   `truth_every` physics steps.
@@ -33,7 +38,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from datasets import codec, schemas
+from datasets import batch_encode, codec, schemas
 from datasets.mcap_batch import BatchWriter
 from datasets.signals import sigint_deferred
 from testbed.recording import Tick
@@ -60,7 +65,7 @@ class DatasetWriter:
         self.partial_path = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")
-        self._writer = BatchWriter(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer = BatchWriter(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD, background=True)
         self._writer.start(profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
         self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
         self.closed = False
@@ -80,11 +85,24 @@ class DatasetWriter:
         self._writer.add_message(self.channels[topic], log_ns, data, log_ns, sequence)
 
     def add_many(self, messages: list[tuple[int, int, bytes, int]], flush: bool) -> None:
-        """(channel id, log ns, data, sequence) messages; `flush` closes the chunk and flushes the file."""
+        """(channel id, log ns, data, sequence) messages; `flush` closes the chunk and hands it to
+        the writer thread, which writes it and flushes the file."""
         with sigint_deferred():
             self._writer.add_messages(messages)
             if flush:
                 self._writer.flush()
+
+    def add_batch(self, batch: batch_encode.Batch, flush: bool) -> None:
+        """Message records laid out by `batch_encode`; `flush` as in `add_many`."""
+        with sigint_deferred():
+            self._writer.add_records(*batch)
+            if flush:
+                self._writer.flush()
+
+    def wait(self) -> None:
+        """Return when every chunk handed to the writer thread is on disk (flushed)."""
+        with sigint_deferred():
+            self._writer.wait()
 
     def close(self, metrics: dict, outcome: dict[str, str]) -> None:
         """Write the metrics, the outcome and the summary, then give the file its final name."""
@@ -100,13 +118,23 @@ class DatasetWriter:
                 os.replace(self.partial_path, self.path)
         finally:
             if not self._file.closed:
-                self._file.close()
+                self._close_file()
 
     def abandon(self) -> None:
         """Close without a summary and delete the temporary file (nothing worth keeping was written)."""
         self.closed = True
-        self._file.close()
+        self._close_file()
         self.partial_path.unlink(missing_ok=True)
+
+    def _close_file(self) -> None:
+        """Close the file after an error: once the writer thread has written what it was given
+        (its own error, if any, is not the one to tell)."""
+        try:
+            self._writer.wait()
+        except Exception:
+            pass
+        finally:
+            self._file.close()
 
     def _register(self, topic: schemas.Topic) -> int:
         descriptor_set = build_file_descriptor_set(topic.message_class).SerializeToString()
@@ -126,7 +154,8 @@ class McapRecorder:
         self._dataset: DatasetWriter | None = None
         self._encoder = codec.Encoder()
         self._channels: dict[str, int] = {}
-        self._pending: list[_Step] = []          # recorded, not yet encoded and written
+        self._channel_of = np.zeros(0, np.int64)     # batch_encode's channel of each layout
+        self._pending: list[tuple] = []          # recorded, not yet encoded and written: _Step's fields
         self._ticks = 0
         self._samples = 0
         self._every = 1
@@ -144,6 +173,7 @@ class McapRecorder:
         self._every = truth_every(config.run.time_step, self.truth_rate)
         self._dataset = DatasetWriter(self.path)
         self._channels = self._dataset.channels
+        self._channel_of = batch_encode.channels_of(self._channels)
         self._dataset.describe_run(run_description(config, self._every, self.truth_rate), config, urdf)
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
@@ -154,12 +184,14 @@ class McapRecorder:
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
         truth = tick.truth
-        self._pending.append(_Step(truth.t, truth.body_position, tick.truth_quaternion, truth.foot_positions,
-                                   truth.foot_contact, tick.samples, tick.estimates,
-                                   tick if self._ticks % self._every == 0 else None))
-        self._ticks += 1
-        self._last_t = tick.truth.t
-        t_ns = codec.to_ns(tick.truth.t)
+        t = truth.t
+        ticks = self._ticks
+        # a _Step, as a plain tuple (a third of the cost)
+        self._pending.append((t, truth.body_position, tick.truth_quaternion, truth.foot_positions, truth.foot_contact,
+                              tick.samples, tick.estimates, None if ticks % self._every else tick))
+        self._ticks = ticks + 1
+        self._last_t = t
+        t_ns = round(t * codec.NS_PER_S)        # codec.to_ns
         if t_ns >= self._next_flush_ns:
             self._write_pending(flush=True)
             self._next_flush_ns = t_ns + codec.to_ns(self.flush_period)
@@ -185,11 +217,15 @@ class McapRecorder:
         until it is written (the encoding holds numpy calls long enough for a signal to come due
         right after it)."""
         steps = self._pending
-        messages = self._messages(steps)
+        batch = batch_encode.lay_out(steps, self._channel_of, self._samples)
+        messages = self._messages([_Step._make(step) for step in steps]) if batch is None else None
         with sigint_deferred():
-            self._samples += sum(len(step.samples) for step in steps)
+            self._samples += sum([len(step[_SAMPLES]) for step in steps])
             steps.clear()
-            self._dataset.add_many(messages, flush)
+            if batch is not None:
+                self._dataset.add_batch(batch, flush)
+            else:
+                self._dataset.add_many(messages, flush)
 
     def _messages(self, steps: list[_Step]) -> list[tuple[int, int, bytes, int]]:
         """(channel, log ns, data, sequence) of the steps, step by step: the samples, the estimates,
@@ -240,6 +276,9 @@ class McapRecorder:
         for transform, state_data, contacts_data, support_data, command_data, t_ns, command_ns in columns:
             yield ((tf, t_ns, transform, 0), (state, t_ns, state_data, 0), (contacts, t_ns, contacts_data, 0),
                    (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
+
+
+_SAMPLES = 5         # a step's samples: _Step.samples
 
 
 class _Step(NamedTuple):

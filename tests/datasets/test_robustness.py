@@ -122,27 +122,33 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
     recorder = McapRecorder(tmp_path / "run.mcap")
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    chunk_builder = recorder._dataset._writer._Writer__chunk_builder
-    original_add = chunk_builder.add_records
+    writer = recorder._dataset._writer
+    original_add = writer.add_records
+    original_finalize = writer._Writer__finalize_chunk
     calls = []
 
-    def add_one_at_a_time_then_interrupt(messages, start, size_limit):
-        for index in range(start, len(messages)):     # the batch, message by message
-            calls.append(1)
-            if len(calls) == 10:
-                os.kill(os.getpid(), signal.SIGINT)    # lands in the middle of a batch of writes
-            original_add(messages[:index + 1], index, size_limit)
-        return len(messages)
+    def add_then_interrupt(*batch):
+        calls.append("add")
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)     # lands between the batch's records and its chunk
+        original_add(*batch)
 
-    chunk_builder.add_records = add_one_at_a_time_then_interrupt
+    def finalize(*args):
+        calls.append("chunk")
+        original_finalize(*args)
+
+    writer.add_records = add_then_interrupt
+    writer._Writer__finalize_chunk = finalize
+    recorded = 0
     with pytest.raises(KeyboardInterrupt):
         for tick in ticks:
+            recorded += 1
             recorder.record(tick)
-    written_before_interrupt = len(calls)
-    assert written_before_interrupt > 10      # the batch went on to its end
+    assert calls == ["add", "chunk"]        # the batch went on to its chunk's hand-over
     recorder.finish({"interrupted": True}, "interrupted")
     recording = read_recording(recorder.path)
     assert recording.truncated is None and recording.metrics() == {"interrupted": True}
+    assert len(recording.samples()) == sum(len(tick.samples) for tick in ticks[:recorded])
     assert run_rerun("mcap", "check", str(recorder.path)).returncode == 0
 
 
@@ -156,18 +162,66 @@ KILLED_RUN = textwrap.dedent("""
     recorder.start(config, urdf, terrain)
     for tick in generate_ticks(config, 1.7):
         recorder.record(tick)
+    if sys.argv[2] == "wait":
+        recorder._dataset.wait()        # the writer thread has put the last flush's chunk on disk
     os.kill(os.getpid(), 9)
 """)
 
 
-def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path):
+@pytest.mark.parametrize("writer", ["wait", "busy"])
+def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path, writer):
+    """Flushed every 0.5 s of simulated time: everything up to t = 1.5 s is on disk once the writer
+    thread has written the chunk of the flush at 1.5 s; killed at any moment, everything up to the
+    flush before it (handing the next chunk over waits for that one)."""
     path = tmp_path / "killed.mcap"
-    result = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path)], cwd=os.getcwd(), timeout=120)
+    result = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path), writer], cwd=os.getcwd(), timeout=120)
     assert result.returncode == -9
     partial = path.with_name(path.name + ".partial")
     assert partial.exists() and not path.exists()
     recording = read_recording(partial)
     assert recording.truncated is not None
-    # flushed every 0.5 s of simulated time: everything up to t = 1.5 s is there
-    assert 1.5 <= recording.duration_s() < 1.7
+    assert (1.5 if writer == "wait" else 1.0) <= recording.duration_s() < 1.7
     assert replay(partial, "complementary").metrics["roll_rmse_deg"] is not None
+
+
+EXCEPTION_RUN = textwrap.dedent("""
+    import sys
+    from datasets.recorder import McapRecorder
+    from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
+    config = synthetic_config("complementary")
+    recorder = McapRecorder(sys.argv[1])
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    for tick in generate_ticks(config, 1.7):
+        recorder.record(tick)
+    raise RuntimeError("the run loop failed")      # no finish: the writer thread still writes its chunk
+""")
+
+
+def test_a_run_that_dies_of_an_exception_still_writes_every_flushed_chunk(tmp_path):
+    path = tmp_path / "died.mcap"
+    result = subprocess.run([sys.executable, "-c", EXCEPTION_RUN, str(path)], cwd=os.getcwd(), timeout=120,
+                            capture_output=True, text=True)
+    assert result.returncode == 1 and "the run loop failed" in result.stderr
+    recording = read_recording(path.with_name(path.name + ".partial"))
+    assert 1.5 <= recording.duration_s() < 1.7
+
+
+def test_an_error_of_the_writer_thread_is_raised_by_the_next_flush_and_leaves_the_partial_file(tmp_path, monkeypatch):
+    config = synthetic_config("complementary")
+    recorder = McapRecorder(tmp_path / "full.mcap")
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    writer = recorder._dataset._writer
+
+    def disk_full(chunks):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(writer, "_write_chunks", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        for tick in generate_ticks(config, 1.2):      # flushes at 0.5 s (fails on the thread), then 1.0 s
+            recorder.record(tick)
+    with pytest.raises(OSError, match="No space left"):
+        recorder.finish({}, None)
+    assert recorder.partial_path.exists() and not recorder.path.exists()
+    assert recorder._dataset._file.closed
