@@ -21,7 +21,9 @@ with the Python encoder.
 
 from __future__ import annotations
 
-from operator import attrgetter
+import dataclasses
+from functools import lru_cache
+from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -111,7 +113,7 @@ def field(kind: int, column: Any, count: int) -> Field:
     if kind == DOUBLES or kind == BOOLS:
         dtype = np.float64 if kind == DOUBLES else np.bool_
         try:
-            values = np.array(column, dtype=dtype)
+            values = np.asarray(column, dtype=dtype, order="C")   # a copy, unless already one array
         except (ValueError, TypeError):         # rows of different sizes, or absent (None) in some
             values = None
         if values is not None and values.ndim >= 2 and len(values) == count:
@@ -168,20 +170,37 @@ def layout_fields(layout: int, columns: list, count: int) -> list[Field]:
 
 
 _NAMES = [tuple(name for name, _, _ in schemas.MESSAGES[name]) for name in _LAYOUT_NAMES]
-_GETTERS = [attrgetter(*names) for names in _NAMES]      # every message has two fields or more
+_GETTERS = [attrgetter(*names) for names in _NAMES]          # every message has two fields or more
+_ITEM_GETTERS = [itemgetter(*names) for names in _NAMES]
 _CONTACT_ARRAYS = codec._CONTACT_ARRAYS
 
 
 def _columns_of(layout: int, items: list) -> list:
-    """Each field's values in `items`, objects with the fields as attributes: of named tuples
-    whose fields start with the message's, by transposing them."""
+    """Each field's values in `items`, objects with the fields as attributes, all of one type:
+    named tuples whose fields start with the message's are transposed; the fields of plain
+    dataclasses are read from their instances' dicts (40 % cheaper than as attributes)."""
     names = _NAMES[layout]
     if not items:
         return [()] * len(names)
     kind = type(items[0])
-    if getattr(kind, "_fields", ())[:len(names)] == names and len(set(map(type, items))) == 1:
-        return list(zip(*items))[:len(names)]
+    if len(set(map(type, items))) == 1:
+        if getattr(kind, "_fields", ())[:len(names)] == names:
+            return list(zip(*items))[:len(names)]
+        if _fields_in_instance_dict(kind, names):
+            return list(zip(*map(_ITEM_GETTERS[layout], map(vars, items))))
     return list(zip(*map(_GETTERS[layout], items)))
+
+
+@lru_cache(maxsize=None)
+def _fields_in_instance_dict(kind: type, names: tuple[str, ...]) -> bool:
+    """Whether an instance's attributes `names` are the values in its __dict__: a dataclass with
+    those fields, no slots, no descriptor of those names, the default attribute lookup."""
+    if not dataclasses.is_dataclass(kind) or kind.__getattribute__ is not object.__getattribute__:
+        return False
+    if any("__slots__" in vars(base) for base in kind.__mro__[:-1]):
+        return False
+    fields = {field.name for field in dataclasses.fields(kind)}
+    return all(name in fields and not hasattr(type(getattr(kind, name, None)), "__get__") for name in names)
 
 
 class Gathered(NamedTuple):

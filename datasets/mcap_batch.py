@@ -15,7 +15,7 @@ waits for the previous one to be on the file, so the writer thread owns the file
 to that wait and nothing else touches it meanwhile. An error of the writer thread is raised in
 the caller's thread by that wait (and by every later one: the file is not written any further).
 The thread is not a daemon: a process whose main thread ends without closing the writer still
-writes the chunks it handed over.
+writes the chunks it handed over. `finish` (or `stop`) ends it.
 
 The file is the same, byte for byte, either way (tests/datasets/test_mcap_batch.py holds it to
 mcap's Writer), so every MCAP reader reads it as before. It reaches into private attributes of
@@ -26,6 +26,7 @@ the mcap package.
 
 from __future__ import annotations
 
+import queue
 import struct
 import threading
 import zlib
@@ -70,8 +71,7 @@ class BatchWriter(Writer):
         self._chunk_size_limit = self._Writer__chunk_size
         self._background = background
         self._finished: list[tuple] = []        # chunks finished, not yet handed to the writer thread
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
+        self._worker: WriterThread | None = None
 
     # --- messages -----------------------------------------------------------------------------
 
@@ -137,19 +137,27 @@ class BatchWriter(Writer):
 
     def finish(self) -> None:
         """mcap's Writer's `finish`, the last chunks written first (the data end record holds the
-        CRC of everything before it)."""
-        self._Writer__finalize_chunk()
-        self._Writer__flush()
-        super().finish()
+        CRC of everything before it); the writer thread ends."""
+        try:
+            self._Writer__finalize_chunk()
+            self._Writer__flush()
+            super().finish()
+        finally:
+            self.stop()
 
     def wait(self) -> None:
         """Return when every chunk handed to the writer thread is on the file; raise its error if
         it failed."""
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        if self._error is not None:
-            raise self._error
+        if self._worker is not None:
+            self._worker.wait()
+            if self._worker.error is not None:
+                raise self._worker.error
+
+    def stop(self) -> None:
+        """End the writer thread once it has written what it was given (its error, if any, is
+        left to `wait`)."""
+        if self._worker is not None:
+            self._worker.stop()
 
     def _Writer__flush(self) -> None:
         """mcap's Writer writes through here (metadata, attachments, the summary): first the
@@ -178,15 +186,13 @@ class BatchWriter(Writer):
         if not self._finished:
             return
         chunks, self._finished = self._finished, []
-        self._thread = threading.Thread(target=self._write_in_background, args=(chunks,), name="mcap-writer")
-        self._thread.start()
+        if self._worker is None:
+            self._worker = WriterThread()
+        self._worker.run(lambda: self._write_and_flush(chunks))
 
-    def _write_in_background(self, chunks: list[tuple]) -> None:
-        try:
-            self._write_chunks(chunks)
-            self._Writer__stream.flush()
-        except BaseException as error:      # raised in the caller's thread by `wait`
-            self._error = error
+    def _write_and_flush(self, chunks: list[tuple]) -> None:
+        self._write_chunks(chunks)
+        self._Writer__stream.flush()
 
     def _write_chunks(self, chunks: list[tuple]) -> None:
         """Compress and write finished chunks, each followed by its message indexes, as mcap's
@@ -221,6 +227,53 @@ class BatchWriter(Writer):
                 chunk_length=chunk_length, message_index_offsets=offsets,
                 message_index_length=position - chunk_start - chunk_length, compression=compression,
                 compressed_size=len(compressed), uncompressed_size=len(data)))
+
+
+class WriterThread:
+    """A thread that runs the jobs handed to it one at a time (one thread for the whole file: a
+    thread started at each flush made the caller wait for it to start). It ends when `stop`ped,
+    or once the main thread has ended and nothing is left to do: a process whose main thread ends
+    without closing the file still writes what it handed over, then exits."""
+
+    POLL_S = 0.1        # how often an idle thread looks whether the main thread has ended
+
+    def __init__(self) -> None:
+        self.error: BaseException | None = None     # the first job's error; later jobs are not run
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._idle = threading.Event()
+        self._idle.set()
+        self._thread = threading.Thread(target=self._loop, name="mcap-writer")
+        self._thread.start()
+
+    def run(self, job) -> None:
+        self._idle.clear()
+        self._jobs.put(job)
+
+    def wait(self) -> None:
+        self._idle.wait()
+
+    def stop(self) -> None:
+        if self._thread.is_alive():
+            self._jobs.put(None)
+            self._thread.join()
+
+    def _loop(self) -> None:
+        while True:
+            try:
+                job = self._jobs.get(timeout=self.POLL_S)
+            except queue.Empty:
+                if threading.main_thread().is_alive():
+                    continue
+                return
+            if job is None:
+                return
+            try:
+                if self.error is None:
+                    job()
+            except BaseException as error:      # raised in the caller's thread by BatchWriter.wait
+                self.error = error
+            finally:
+                self._idle.set()
 
 
 class BatchChunkBuilder(ChunkBuilder):

@@ -130,9 +130,7 @@ class DatasetWriter:
         """Close the file after an error: once the writer thread has written what it was given
         (its own error, if any, is not the one to tell)."""
         try:
-            self._writer.wait()
-        except Exception:
-            pass
+            self._writer.stop()
         finally:
             self._file.close()
 
