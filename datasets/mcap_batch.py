@@ -29,6 +29,7 @@ from __future__ import annotations
 import queue
 import struct
 import threading
+import weakref
 import zlib
 from collections import Counter
 from itertools import islice
@@ -188,6 +189,7 @@ class BatchWriter(Writer):
         chunks, self._finished = self._finished, []
         if self._worker is None:
             self._worker = WriterThread()
+            weakref.finalize(self, self._worker.end)       # a writer dropped without `finish`
         self._worker.run(lambda: self._write_and_flush(chunks))
 
     def _write_and_flush(self, chunks: list[tuple]) -> None:
@@ -252,9 +254,14 @@ class WriterThread:
     def wait(self) -> None:
         self._idle.wait()
 
+    def end(self) -> None:
+        """Let the thread end after the jobs handed to it."""
+        self._jobs.put(None)
+
     def stop(self) -> None:
+        """End the thread after the jobs handed to it, and wait for it."""
         if self._thread.is_alive():
-            self._jobs.put(None)
+            self.end()
             self._thread.join()
 
     def _loop(self) -> None:
@@ -273,6 +280,7 @@ class WriterThread:
             except BaseException as error:      # raised in the caller's thread by BatchWriter.wait
                 self.error = error
             finally:
+                job = None          # holds the writer, whose collection ends this thread
                 self._idle.set()
 
 

@@ -210,7 +210,8 @@ class McapRecorder:
     # --- internals ----------------------------------------------------------------------------
 
     def _write_pending(self, flush: bool) -> None:
-        """Encode what was recorded since the last write and write it. A Ctrl-C while encoding
+        """Encode what was recorded since the last write (`batch_encode`'s compiled layout, or the
+        Python encoder's messages) and write it. A Ctrl-C while encoding
         leaves it pending for `finish`; from the moment it is handed over to the writer it waits
         until it is written (the encoding holds numpy calls long enough for a signal to come due
         right after it)."""
@@ -228,7 +229,9 @@ class McapRecorder:
     def _messages(self, steps: list[_Step]) -> list[tuple[int, int, bytes, int]]:
         """(channel, log ns, data, sequence) of the steps, step by step: the samples, the estimates,
         the pose, the feet and, where the step keeps its tick, the heavy truth. Each topic's
-        messages are encoded in one batch (the encoder vectorises it), then laid out in that order."""
+        messages are encoded in one batch (the encoder vectorises it), then laid out in that order.
+        The Python encoder's path: for the values that `batch_encode` does not take, and its
+        reference in tests/datasets/test_batch_encode.py."""
         channels, encoder = self._channels, self._encoder
         samples = [sample for step in steps for sample in step.samples]
         estimates = [estimate for step in steps for estimate in step.estimates]

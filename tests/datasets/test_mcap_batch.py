@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gc
 import io
+import threading
 
 import numpy as np
 import pytest
@@ -132,3 +134,27 @@ def test_an_error_of_the_writer_thread_is_raised_in_the_callers_thread():
 def test_a_writer_without_chunks_is_refused():
     with pytest.raises(ValueError, match="chunked"):
         BatchWriter(io.BytesIO(), use_chunking=False)
+
+
+def _writer_threads() -> int:
+    return sum(thread.name == "mcap-writer" for thread in threading.enumerate())
+
+
+def test_the_writer_thread_ends_with_finish_or_with_a_writer_dropped_unfinished():
+    before = _writer_threads()
+    for finish in (True, False):
+        writer = BatchWriter(io.BytesIO(), background=True)
+        writer.start()
+        channel = writer.register_channel("/a", "json", 0)
+        writer.add_messages([(channel, 1, b"{}", 0)])
+        writer.flush()
+        assert _writer_threads() == before + 1
+        if finish:
+            writer.finish()
+        else:
+            writer.wait()
+            thread = writer._worker._thread
+            del writer
+            gc.collect()
+            thread.join(timeout=5)
+        assert _writer_threads() == before
