@@ -20,6 +20,9 @@ from testbed.errors import ConfigError
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
 TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
+# Rules by which compiled code finds Terrain.candidates (`candidates_by_rule`): every box, or the
+# blocks around each point (RoughTerrain).
+EVERY_BOX, BLOCKS_AROUND = 0, 1
 
 
 @dataclass(frozen=True)
@@ -136,6 +139,13 @@ class Terrain:
         """(N, K) indices of the boxes that may hold the surface nearest each point."""
         return np.broadcast_to(self._every_box, (len(points), len(self._every_box)))
 
+    def candidate_rule(self) -> tuple[int, np.ndarray] | None:
+        """`candidates` for compiled code: the rule and its data for `candidates_by_rule`, which
+        gives the same boxes in the same order; None for a subclass with candidates of its own."""
+        if type(self).candidates is not Terrain.candidates:
+            return None
+        return EVERY_BOX, np.array([len(self.boxes)], dtype=float)
+
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         points = np.atleast_2d(np.asarray(points, dtype=float))
         return signed_distance_to_boxes(points, self.boxes, self.candidates(points))
@@ -240,6 +250,12 @@ class RoughTerrain(Terrain):
         x0, _, y0, _ = self.config.extent
         return _grid_candidates(points, float(x0), float(y0), float(self.config.rough_cell), self.nx, self.ny)
 
+    def candidate_rule(self) -> tuple[int, np.ndarray] | None:
+        if type(self).candidates is not RoughTerrain.candidates:
+            return None
+        x0, _, y0, _ = self.config.extent
+        return BLOCKS_AROUND, np.array([x0, y0, self.config.rough_cell, self.nx, self.ny], dtype=float)
+
 
 @njit(cache=True)
 def _grid_candidates(points, x0, y0, cell, nx, ny):
@@ -254,6 +270,35 @@ def _grid_candidates(points, x0, y0, cell, nx, ny):
                 candidates[i, k] = min(max(ix + dx, 0), nx - 1) * ny + min(max(iy + dy, 0), ny - 1)
                 k += 1
     return candidates
+
+
+@njit(cache=True)
+def candidates_by_rule(points, rule, data):
+    """Terrain.candidates of (N, 3) `points` by a terrain's `candidate_rule()` (compiled; callable
+    from other kernels): every one of int(data[0]) boxes, or RoughTerrain's blocks around each point
+    on the grid data = (x0, y0, cell, nx, ny)."""
+    if rule == BLOCKS_AROUND:
+        return _grid_candidates(points, data[0], data[1], data[2], int(data[3]), int(data[4]))
+    boxes = int(data[0])
+    candidates = np.empty((len(points), boxes), np.int64)
+    for i in range(len(points)):
+        for j in range(boxes):
+            candidates[i, j] = j
+    return candidates
+
+
+@njit(cache=True)
+def closest_distance(point, centers, halves, rotations, candidates):
+    """Terrain.closest's signed distance of one point to the union of its `candidates` (a row of
+    box indices): the smallest distance, the first of equal ones (numpy's argmin)."""
+    normal = np.empty(3)
+    best = np.inf
+    for j in range(len(candidates)):
+        box = candidates[j]
+        distance = _box_distance(point, centers[box], halves[box], rotations[box], normal)
+        if j == 0 or distance < best or (np.isnan(distance) and not np.isnan(best)):
+            best = distance
+    return best
 
 
 def _require_inside(value: float, low: float, high: float) -> None:

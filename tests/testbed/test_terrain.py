@@ -80,3 +80,33 @@ def test_step_edge_outside_extent_is_rejected():
     bad = config.load(overrides={"terrain": {"step_edge_x": 100.0}})
     with pytest.raises(ConfigError, match="step_edge_x"):
         make_terrain("step", bad.terrain, np.random.default_rng(0))
+
+
+class OwnCandidates:
+    """A terrain whose candidate boxes come from a method of its own (Terrain.candidate_rule: None)."""
+
+    @staticmethod
+    def of(terrain):
+        kind = type(terrain)
+        subclass = type(f"Own{kind.__name__}", (kind,), {"candidates": lambda self, points: kind.candidates(self, points)})
+        terrain.__class__ = subclass
+        return terrain
+
+
+@pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
+def test_candidate_rules_give_the_terrains_candidates_and_closest_distances(name):
+    from testbed.terrain import candidates_by_rule, closest_distance
+    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(3))
+    rule, data = terrain.candidate_rule()
+    rng = np.random.default_rng(5)
+    points = np.column_stack([rng.uniform(-2.5, 2.5, (300, 2)), rng.uniform(-0.06, 0.06, 300)])
+    points[:20, 0] = CFG.terrain.step_edge_x + rng.normal(0.0, 1e-3, 20)      # at the step's riser
+    points[20:40, :2] = np.round(points[20:40, :2] / CFG.terrain.rough_cell) * CFG.terrain.rough_cell  # block edges
+    candidates = candidates_by_rule(points, rule, data)
+    np.testing.assert_array_equal(candidates, terrain.candidates(points))
+    boxes = terrain.boxes
+    distances = [closest_distance(point, boxes.centers, boxes.half_extents, boxes.rotations, row)
+                 for point, row in zip(points, candidates)]
+    expected = terrain.closest(points)[0]
+    assert np.array_equal(np.array(distances).view(np.uint64), expected.view(np.uint64))
+    assert OwnCandidates.of(terrain).candidate_rule() is None
