@@ -390,9 +390,9 @@ def _read_out(positions, velocities, previous, parameters, contact_mode, anchors
     world-frame velocities and their finite differences over the step (`previous`, (6,), holds the
     linear and angular velocity one step earlier and is updated in place), the quaternion, the foot
     centres by eq. 2; with COMPLIANT_CONTACT also the hard-finger contact of the next step
-    (`_contact_into`, on the boxes the terrain's candidate `rule` finds). Then the touching feet as bits (leg i: 1 << i), -1 if a coordinate
-    or rate is not finite; and world_from_body[2, 2]. `parameters`: dt, a2, a3, then the six base
-    angles and the six base distances."""
+    (`_contact_into`, on the boxes the terrain's candidate `rule` finds). Then the touching feet as
+    bits (leg i: 1 << i), -1 if a coordinate or rate is not finite; and world_from_body[2, 2].
+    `parameters`: dt, a2, a3, then the six base angles and the six base distances."""
     dt, a2, a3, base_angle, base_distance = parameters[0], parameters[1], parameters[2], parameters[3:9], parameters[9:15]
     frame = np.zeros((FRAME_ROWS, 3))
     transform = free_joint_transform(positions)
