@@ -108,7 +108,8 @@ def hard_finger_into(centers, center_velocities, spins, link_rotations, link_ori
             forces[leg, i] = 0.0
             normals_out[leg, i] = 0.0
         normal_force[leg] = 0.0
-        arm = points[leg] - centers[leg]
+        # Scalars rather than (3,) arrays: each array is a heap allocation in compiled code.
+        arm = (points[leg, 0] - centers[leg, 0], points[leg, 1] - centers[leg, 1], points[leg, 2] - centers[leg, 2])
         velocity[0] = center_velocities[leg, 0] + spin[1] * arm[2] - spin[2] * arm[1]
         velocity[1] = center_velocities[leg, 1] + spin[2] * arm[0] - spin[0] * arm[2]
         velocity[2] = center_velocities[leg, 2] + spin[0] * arm[1] - spin[1] * arm[0]
@@ -122,7 +123,7 @@ def hard_finger_into(centers, center_velocities, spins, link_rotations, link_ori
         # Friction: a spring to the sticking anchor plus slip damping, capped at friction * F_n.
         if np.isnan(anchors[leg, 0]):
             anchors[leg] = points[leg]
-        stretch = points[leg] - anchors[leg]
+        stretch = (points[leg, 0] - anchors[leg, 0], points[leg, 1] - anchors[leg, 1], points[leg, 2] - anchors[leg, 2])
         along = stretch[0] * normal[0] + stretch[1] * normal[1] + stretch[2] * normal[2]
         for i in range(3):
             slip[i] = velocity[i] - normal_speed * normal[i]

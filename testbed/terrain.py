@@ -57,26 +57,29 @@ def distances_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray)
 @njit(cache=True)
 def _box_distance(point, center, half, rotation, normal) -> float:
     """Signed distance from `point` to one box; writes the outward normal of its nearest surface.
-    Outside: from the nearest point of the box. Inside: the face nearest the point."""
-    local, excess = np.empty(3), np.empty(3)
+    Outside: from the nearest point of the box. Inside: the face nearest the point. (On scalars and
+    tuples: three small arrays per call were half the contact's time, the feet asking a dozen boxes.)"""
+    dx, dy, dz = point[0] - center[0], point[1] - center[1], point[2] - center[2]
+    local = (rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz,
+             rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz,
+             rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz)
+    excess = (abs(local[0]) - half[0], abs(local[1]) - half[1], abs(local[2]) - half[2])
     outside_sq, face = 0.0, 0
     for i in range(3):
-        local[i] = (rotation[0, i] * (point[0] - center[0]) + rotation[1, i] * (point[1] - center[1])
-                    + rotation[2, i] * (point[2] - center[2]))
-        excess[i] = abs(local[i]) - half[i]
         if excess[i] > 0.0:
             outside_sq += excess[i] * excess[i]
         if excess[i] > excess[face]:
             face = i
     outside_norm = math.sqrt(outside_sq)
-    normal_local = np.zeros(3)
     if outside_norm > 1e-12:
-        for i in range(3):
-            normal_local[i] = max(excess[i], 0.0) * np.sign(local[i]) / outside_norm
+        n0 = max(excess[0], 0.0) * np.sign(local[0]) / outside_norm
+        n1 = max(excess[1], 0.0) * np.sign(local[1]) / outside_norm
+        n2 = max(excess[2], 0.0) * np.sign(local[2]) / outside_norm
     else:
-        normal_local[face] = 1.0 if local[face] >= 0.0 else -1.0
+        side = 1.0 if local[face] >= 0.0 else -1.0
+        n0, n1, n2 = (side if face == 0 else 0.0), (side if face == 1 else 0.0), (side if face == 2 else 0.0)
     for i in range(3):
-        normal[i] = rotation[i, 0] * normal_local[0] + rotation[i, 1] * normal_local[1] + rotation[i, 2] * normal_local[2]
+        normal[i] = rotation[i, 0] * n0 + rotation[i, 1] * n1 + rotation[i, 2] * n2
     return outside_norm + min(excess[face], 0.0)
 
 
