@@ -26,6 +26,7 @@ class Encoders:
         self._noise = RowBuffer(gaussian_rows(rng, config.noise, NUM_JOINTS)) if config.noise > 0 else None
         # A spike of one half turn by default: the worst a wrapped angle can be off.
         self._faults = FaultInjector(faults, "encoder", NUM_JOINTS, np.full(NUM_JOINTS, math.pi))
+        self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
     def corrupt(self, angles: np.ndarray) -> np.ndarray:
         return angles + self._noise.next() if self._noise else np.array(angles, dtype=float)
@@ -34,6 +35,9 @@ class Encoders:
         return wrapped_counts(raw, self.lsb, self._counts_per_turn)
 
     def samples_at(self, truth: Truth, t: float) -> list[EncoderSample]:
+        if self._plain:
+            return [EncoderSample(t, _noisy_counts(truth.joint_positions, self._noise.next(), self.lsb,
+                                                   self._counts_per_turn))]
         out, dropped = measure(self, self._faults, t, truth.joint_positions)
         if dropped is not None and dropped.all():
             return []
@@ -51,3 +55,9 @@ def wrapped_counts(raw: np.ndarray, lsb: float, counts_per_turn: int) -> np.ndar
     for i in range(len(raw)):
         out[i] = ((np.rint(raw[i] / lsb) + half) % counts_per_turn - half) * lsb
     return out
+
+
+@njit(cache=True)
+def _noisy_counts(angles: np.ndarray, noise: np.ndarray, lsb: float, counts_per_turn: int) -> np.ndarray:
+    """wrapped_counts(angles + noise): `measure`'s corrupt and digitize of a fault-free encoder."""
+    return wrapped_counts(angles + noise, lsb, counts_per_turn)

@@ -23,6 +23,7 @@ class FootSensors:
         self._noise = RowBuffer(gaussian_rows(rng, config.noise, NUM_LEGS)) if config.noise > 0 else None
         self._faults = FaultInjector(faults, "foot", NUM_LEGS, np.full(NUM_LEGS, config.full_scale))
         self._contact = np.zeros(NUM_LEGS, dtype=bool)
+        self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
     def corrupt(self, forces: np.ndarray) -> np.ndarray:
         return forces + self._noise.next() if self._noise else np.array(forces, dtype=float)
@@ -31,6 +32,11 @@ class FootSensors:
         return saturated(raw, self.config.full_scale)
 
     def samples_at(self, truth: Truth, t: float) -> list[FootSample]:
+        if self._plain:
+            config = self.config
+            forces, self._contact = _noisy_reading(truth.foot_normal_forces, self._noise.next(), config.full_scale,
+                                                   self._contact, config.contact_on, config.contact_off)
+            return [FootSample(t, forces, self._contact)]
         forces, dropped = measure(self, self._faults, t, truth.foot_normal_forces)
         if dropped is not None and dropped.all():
             return []
@@ -60,3 +66,12 @@ def contact_hysteresis(forces: np.ndarray, contact: np.ndarray, on: float, off: 
     for i in range(len(forces)):
         out[i] = forces[i] > on or (contact[i] and forces[i] >= off)
     return out
+
+
+@njit(cache=True)
+def _noisy_reading(forces: np.ndarray, noise: np.ndarray, full_scale: float, contact: np.ndarray, on: float,
+                   off: float) -> tuple[np.ndarray, np.ndarray]:
+    """A fault-free sample in one call: `measure`'s corrupt and digitize (saturated(forces + noise)),
+    then the contact flags (a new array) by contact_hysteresis."""
+    readings = saturated(forces + noise, full_scale)
+    return readings, contact_hysteresis(readings, contact, on, off)

@@ -28,6 +28,10 @@ class Imu:
                   TriadErrors(config.gyro, config.rate, sensor_seed(run_seed, "imu.gyro"))]
         self.channels = InertialChannels(triads, frame=block_diag(sensor_from_body, sensor_from_body))
         self._faults = FaultInjector(faults, "imu", 6, self.channels.full_scale)
+        self._fault_free = not self._faults
+        # The fault-free reading's digitizing constants in one array: numba unboxes each argument.
+        channels = self.channels
+        self._constants = np.concatenate([[motion.gravity], channels.lsb, channels.lowest, channels.highest])
 
     def body_values(self, motion: BodyMotion) -> np.ndarray:
         """(6,) noise-free specific force at the IMU point and angular velocity, body frame."""
@@ -37,15 +41,15 @@ class Imu:
         return values
 
     def samples_at(self, truth: Truth, t: float) -> list[ImuSample]:
-        if self._faults:
+        if self._fault_free:
+            channels = self.channels
+            out = _imu_reading(truth.body_rotation, truth.body_linear_acceleration, truth.body_angular_velocity,
+                               truth.body_angular_acceleration, self._position, self._constants, channels.gain,
+                               channels.next_errors())
+        else:
             out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))
             if dropped is not None and dropped.all():
                 return []
-        else:
-            channels = self.channels
-            out = _imu_reading(truth.body_rotation, truth.body_linear_acceleration, truth.body_angular_velocity,
-                               truth.body_angular_acceleration, self._motion.gravity, self._position, channels.gain,
-                               channels.next_errors(), channels.lsb, channels.lowest, channels.highest)
         return [ImuSample(t, out[:3], out[3:])]
 
     def record(self, truth: Truth, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -59,8 +63,9 @@ class Imu:
 # Compiled: the fault-free IMU sample at 1 kHz in one call, through the same compiled steps as the
 # faulted path (true values, errors, digitizing), which numpy spent a dozen small calls on.
 @njit(cache=True)
-def _imu_reading(rotation, acceleration, angular_velocity, angular_acceleration, gravity, position, gain, errors,
-                 lsb, lowest, highest):
+def _imu_reading(rotation, acceleration, angular_velocity, angular_acceleration, position, constants, gain, errors):
+    """`constants`: gravity, then the channels' lsb, lowest and highest (6,) each."""
+    gravity, lsb, lowest, highest = constants[0], constants[1:7], constants[7:13], constants[13:19]
     force, omega, lever = body_motion_arrays(rotation, acceleration, angular_velocity, angular_acceleration, gravity)
     values = np.empty(6)
     # np.dot is BLAS's dgemv, as numpy's `points @ lever_arm.T` in BodyMotion: the same bits.

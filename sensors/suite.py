@@ -45,6 +45,7 @@ class SensorSuite:
         self.encoders = Encoders(config.encoder, seed, faults)
         self.foot = FootSensors(config.foot, seed, faults)
         self._sensors: list[Sensor] = [s for s in (self.imu, self.accel_array, self.encoders, self.foot) if s is not None]
+        self._clocked = [(sensor, sensor.clock) for sensor in self._sensors]
         self._previous: Truth | None = None
 
     @classmethod
@@ -56,9 +57,9 @@ class SensorSuite:
         """Samples with t in (previous truth.t, truth.t], sorted by t (ties: IMU, array, encoders, feet)."""
         samples: list[Sample] = []
         now, previous = truth.t, self._previous
-        for sensor in self._sensors:
-            clock = sensor.clock
-            if clock.next_time > now + TIME_EPS:    # the usual case of the slower sensors: nothing due
+        due_by = now + TIME_EPS
+        for sensor, clock in self._clocked:
+            if clock.next_time > due_by:    # the usual case of the slower sensors: nothing due
                 continue
             for t in clock.due(now):
                 # The latest truth at or before t (on the first call, the truth given).

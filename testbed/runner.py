@@ -23,7 +23,7 @@ from testbed.metrics import RunMetrics
 from testbed.pilot import Pilot
 from testbed.recording import NullRecorder, Recorder, Tick
 from testbed.simulation import FALL_TILT, Simulation
-from testbed.stability import stance_support
+from testbed.stability import stance_support, stance_support_on_terrain
 from testbed.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
@@ -56,10 +56,20 @@ class SupportTracker:
         self.foot_radius = foot_radius
         self.last_touch = np.full(6, -np.inf)
         self._not_resting = np.zeros(6, dtype=bool)
+        boxes = terrain.boxes
+        self._boxes = (boxes.centers, boxes.half_extents, boxes.rotations)
+        self._rule = terrain.candidate_rule()
 
     def polygon_and_margin(self, truth, swinging: np.ndarray) -> tuple[np.ndarray, float]:
-        """The support polygon and the centre of mass's stability margin in it (one compiled call
-        unless a stance foot is late: then the terrain tells whether it rests on the ground)."""
+        """The support polygon and the centre of mass's stability margin in it: one compiled call
+        which, when a stance foot is late, asks the terrain whether it rests on the ground (in
+        Python for a terrain with candidate boxes of its own)."""
+        if self._rule is not None:
+            centers, halves, rotations = self._boxes
+            return stance_support_on_terrain(self.last_touch, truth.foot_contact, swinging, truth.t,
+                                             truth.foot_positions, truth.com_position, CONTACT_DEBOUNCE,
+                                             self.foot_radius, GROUND_TOLERANCE, centers, halves, rotations,
+                                             *self._rule)
         args = (self.last_touch, truth.foot_contact, swinging, truth.t, truth.foot_positions, truth.com_position,
                 CONTACT_DEBOUNCE)
         polygon, margin, late_bits = stance_support(*args, self._not_resting)

@@ -7,18 +7,18 @@ truth. The loop that calls them (sensors, estimator, controller) lives in `testb
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import dartpy as dart
 import numpy as np
 from numba import njit
 
 from testbed.config import Config
-from testbed.contact import CompliantContact, FootContacts
+from testbed.contact import CompliantContact, FootContacts, hard_finger_into
 from testbed.errors import SimulationDiverged
-from testbed.kinematics import LegGeometry, world_feet_arrays, inverse_kinematics_all, nominal_stance
+from testbed.kinematics import (LegGeometry, inverse_kinematics_all, nominal_stance, rows_times_matrix,
+                                world_feet_arrays)
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset, joint_names
-from testbed.terrain import Terrain, distances_to_boxes
+from testbed.terrain import Terrain, _box_distance, candidates_by_rule, distances_to_boxes
 from testbed.truth import Truth
 
 INITIAL_CLEARANCE = 0.001   # m, feet start this far above the ground and settle onto it
@@ -77,6 +77,7 @@ class Simulation:
         self._check_root_joint()
         self._setup_servos()
         self.contact_model = config.run.contact
+        self._compliant = self.contact_model == "compliant"
         self._setup_contact()
         self.world.addSkeleton(self.robot)
         if self.contact_model == "compliant":
@@ -86,11 +87,17 @@ class Simulation:
             self.world.getConstraintSolver().getCollisionGroup().removeShapeFramesOf(self.robot)
         self.standing_targets = self._place_robot()
         self._commands = np.zeros(self.robot.getNumDofs())
+        self._joint_commands = self._commands[6:]
+        self._servo_gain = float(config.robot.servo_gain)
+        self._servo_limit = float(config.robot.servo_speed_limit)
+        # The binding calls of every step, looked up once.
+        self._get_positions, self._get_velocities = self.robot.getPositions, self.robot.getVelocities
+        self._get_com, self._set_commands = self.robot.getCOM, self.robot.setCommands
+        self._world_step = self.world.step
         # DART's clock, kept here: World.step adds the time step to it (tested equal bit for bit),
         # and asking DART costs a binding call (~1 us in the run loop) twice per step.
         self._time = self.world.getTime()
-        self._contacts = FootContacts.none()
-        self._state = BodyState.zero()
+        self._setup_read_out()
         self._read_state()
         self.cone_corrections = 0          # DART contact forces projected back onto the cone
         self.worst_cone_ratio = 1.0        # worst |F_t| / (mu F_n) that DART reported
@@ -137,6 +144,30 @@ class Simulation:
         self.foot_shape_leg = {tibia.getShapeNodes()[-1].getName(): leg for leg, tibia in enumerate(self.tibias)}
         self._collision_legs: dict[object, int | None] = {}
 
+    def _setup_read_out(self) -> None:
+        """What the state read-out kernel (`_read_out`) needs besides DART's coordinates, packed once;
+        with the compliant contact, the kernel also computes the next step's contact forces."""
+        geometry = self.geometry
+        self._read_out_parameters = np.concatenate([[self.dt, geometry.femur, geometry.tibia], geometry.base_angle,
+                                                    geometry.base_distance])
+        self._previous_velocities = np.zeros(6)     # the body's linear and angular velocity one step earlier
+        boxes = self.terrain.boxes
+        self._boxes = (boxes.centers, boxes.half_extents, boxes.rotations)
+        # The terrain's candidate boxes found in the kernels, unless it has a rule of its own.
+        self._candidate_rule = self.terrain.candidate_rule()
+        self._rule, self._rule_data = self._candidate_rule or (NO_RULE, np.zeros(1))
+        self._contact_mode = COMPLIANT_CONTACT if self._compliant and self._candidate_rule else NO_CONTACT
+        self._anchors = self.compliant.anchors if self._compliant else np.zeros((6, 3))
+        self._contact_parameters = self.compliant.parameters if self._compliant else np.zeros(7)
+        # The forces the next step applies and their points in the tibias' frames, written by the
+        # kernel; per set of touching feet (bits), the addExtForce calls that apply them.
+        self._applied_forces, self._applied_offsets = np.zeros((6, 3)), np.zeros((6, 3))
+        self._applications = tuple(
+            tuple((self.tibias[leg].addExtForce, self._applied_forces[leg], self._applied_offsets[leg])
+                  for leg in range(6) if bits >> leg & 1) for bits in range(64))
+        self._contacts = FootContacts.none()    # the contacts acting in the latest step
+        self._pending, self._pending_bits = self._contacts, 0   # the compliant contact of the next step
+
     def _place_robot(self) -> np.ndarray:
         """Body level at the nominal height over the ground under it, each foot just above its ground."""
         robot = self.config.robot
@@ -173,39 +204,60 @@ class Simulation:
 
     def step(self, joint_targets: np.ndarray) -> None:
         """One physics step with the servos driving towards `joint_targets` (18,) rad."""
-        robot = self.config.robot
-        servo_speeds(np.asarray(joint_targets, dtype=float), self._state.joint_positions, robot.servo_gain,
-                     robot.servo_speed_limit, self._commands[6:])
-        self.robot.setCommands(self._commands)   # world.step() clears commands: set them every step
-        if self.contact_model == "compliant":
+        servo_speeds(np.asarray(joint_targets, dtype=float), self._truth.joint_positions, self._servo_gain,
+                     self._servo_limit, self._joint_commands)
+        self._set_commands(self._commands)   # world.step() clears commands: set them every step
+        if self._compliant:
             self._apply_compliant_contact()
-        self.world.step()
+        self._world_step()
         self._time += self.dt
-        if self.contact_model == "dart":
+        if not self._compliant:
             self._contacts = self._read_dart_contacts()
         self._read_state()
 
     def _read_state(self) -> None:
         """Everything the truth and the next contact need, read from DART once per step: the joint
         coordinates and rates (the body's pose and twist follow from the root FreeJoint's), the centre
-        of mass; the feet follow by eq. 2."""
-        positions, velocities = self.robot.getPositions(), self.robot.getVelocities()
-        previous, geometry = self._state, self.geometry
-        finite, transform, body, foot_centers, foot_links = _body_state(
-            positions, velocities, previous.linear_velocity, previous.angular_velocity, self.dt, geometry.base_angle,
-            geometry.base_distance, geometry.femur, geometry.tibia)
-        if not finite:
+        of mass; the feet follow by eq. 2, and with the compliant contact the forces of the next
+        step from them, all in one compiled call (`_read_out`)."""
+        positions, velocities, com = self._get_positions(), self._get_velocities(), self._get_com()
+        centers, halves, rotations = self._boxes
+        frame, bits, up = _read_out(positions, velocities, self._previous_velocities, self._read_out_parameters,
+                                    self._contact_mode, self._anchors, self._contact_parameters, centers, halves,
+                                    rotations, self._rule, self._rule_data, self._applied_forces,
+                                    self._applied_offsets)
+        if bits < 0:
             raise SimulationDiverged(f"simulation state became non-finite at t = {self.time:.3f} s")
-        self._state = BodyState(self._time, transform, body[0:4], body[4:7], body[7:10], body[10:13], body[13:16],
-                                positions[6:], velocities[6:], self.robot.getCOM(), foot_centers, foot_links)
+        self._frame, self._up = frame, up
+        contacts = self._contacts
+        # Views of the kernel's one array (a new one at each step): numba hands back each returned
+        # array for ~0.4 us, a view costs a quarter of that.
+        self._truth = Truth(self._time, frame[POSITION], frame[0:3], frame[LINEAR], frame[ANGULAR], frame[LINEAR_RATE],
+                            frame[ANGULAR_RATE], positions[6:], velocities[6:], frame[CENTERS:CENTERS + 6],
+                            contacts.forces, contacts.normal_forces, contacts.in_contact, com)
+        flat = frame.reshape(-1)
+        self._quaternion = flat[QUATERNION:QUATERNION + 4]
+        if self._compliant:
+            if self._candidate_rule is None:
+                bits = self._other_candidates_contact(frame, positions, velocities)
+            self._pending = FootContacts(frame[FORCES:FORCES + 6], flat[NORMAL_FORCES:NORMAL_FORCES + 6],
+                                         frame[NORMALS:NORMALS + 6], frame[POINTS:POINTS + 6], IN_CONTACT[bits])
+            self._pending_bits = bits
+
+    def _other_candidates_contact(self, frame: np.ndarray, positions: np.ndarray, velocities: np.ndarray) -> int:
+        """The compliant contact on a terrain with its own candidate boxes: asked in Python for the
+        feet the kernel read out, then the same model in a second compiled call."""
+        candidates = np.ascontiguousarray(self.terrain.candidates(frame[CENTERS:CENTERS + 6]), dtype=np.int64)
+        centers, halves, rotations = self._boxes
+        return _contact_of_frame(frame, positions, velocities, self._read_out_parameters, self.compliant.anchors,
+                                 self.compliant.parameters, centers, halves, rotations, candidates,
+                                 self._applied_forces, self._applied_offsets)
 
     def _apply_compliant_contact(self) -> None:
-        contacts, offsets = self.compliant.compute(self._state.foot_centers, self._state.foot_links)
-        forces = contacts.forces
-        for leg, touching in enumerate(contacts.in_contact.tolist()):
-            if touching:
-                self.tibias[leg].addExtForce(forces[leg], offsets[leg], False, True)
-        self._contacts = contacts
+        """The forces the kernel computed from the latest state, on the tibias whose feet touch."""
+        for add_force, force, offset in self._applications[self._pending_bits]:
+            add_force(force, offset, False, True)
+        self._contacts = self._pending
 
     def _read_dart_contacts(self) -> FootContacts:
         # Sums in Python floats, contact by contact in DART's order: the same additions numpy made on
@@ -270,20 +322,18 @@ class Simulation:
 
     # ----------------------------------------------------------------- reading
     def body_transform(self) -> np.ndarray:
-        return self._state.transform.copy()
+        transform = np.eye(4)
+        transform[:3, :3], transform[:3, 3] = self._frame[0:3], self._frame[POSITION]
+        return transform
 
     def body_quaternion(self) -> np.ndarray:
         """world_from_body as (x, y, z, w): new at each step and shared, like the truth's arrays
         (not to be modified)."""
-        return self._state.quaternion
+        return self._quaternion
 
     def truth(self) -> Truth:
-        state, contacts = self._state, self._contacts
-        # Every array of the state and the contacts is new at each step: the truth may share them.
-        return Truth(state.t, state.transform[:3, 3], state.transform[:3, :3], state.linear_velocity,
-                     state.angular_velocity, state.linear_acceleration, state.angular_acceleration,
-                     state.joint_positions, state.joint_velocities, state.foot_centers, contacts.forces,
-                     contacts.normal_forces, contacts.in_contact, state.com)     # positional: half the cost of keywords
+        # Built by the state read-out: every array in it is new at each step, and may be shared.
+        return self._truth
 
     def contacts(self) -> FootContacts:
         return self._contacts
@@ -291,48 +341,60 @@ class Simulation:
     def body_touches_ground(self) -> bool:
         if self.contact_model == "dart":
             return bool(getattr(self, "_body_touches", False))
-        transform = self._state.transform
-        world_corners = self._body_corners @ transform[:3, :3].T + transform[:3, 3]
-        # Inside any candidate box, not only the nearest surface's (Terrain.closest): the same answer
-        # without picking the nearest, half the cost.
-        distance, _ = distances_to_boxes(world_corners, self.terrain.boxes, self.terrain.candidates(world_corners))
-        return bool((distance < 0.0).any())
+        frame = self._frame
+        if self._candidate_rule is None:
+            world_corners = self._body_corners @ frame[0:3].T + frame[POSITION]
+            distance, _ = distances_to_boxes(world_corners, self.terrain.boxes, self.terrain.candidates(world_corners))
+            return bool((distance < 0.0).any())
+        centers, halves, rotations = self._boxes
+        return _corners_in_ground(self._body_corners, frame, centers, halves, rotations, self._rule, self._rule_data)
 
     def body_tilt(self) -> float:
         """Angle between the body's z axis and the vertical, rad."""
-        return math.acos(min(max(self._state.transform[2, 2], -1.0), 1.0))
+        return math.acos(min(max(self._up, -1.0), 1.0))
 
 
-class BodyState(NamedTuple):
-    """What one physics step leaves behind, read from DART once. Every array is new at each step."""
-    t: float
-    transform: np.ndarray              # (4, 4) world_from_body
-    quaternion: np.ndarray             # (4,) the same rotation as (x, y, z, w)
-    linear_velocity: np.ndarray        # (3,) m/s, world, of the body origin
-    angular_velocity: np.ndarray       # (3,) rad/s, world
-    linear_acceleration: np.ndarray    # (3,) m/s^2, world: finite difference over the last step
-    angular_acceleration: np.ndarray   # (3,) rad/s^2
-    joint_positions: np.ndarray        # (18,) rad
-    joint_velocities: np.ndarray       # (18,) rad/s
-    com: np.ndarray                    # (3,) m, world: whole-robot centre of mass
-    foot_centers: np.ndarray | None    # (6, 3) m, world: foot sphere centres
-    foot_links: np.ndarray | None      # (6, 6, 3) the tibias' motion and pose (CompliantContact.compute's `links`)
+# Rows of the state read-out's frame (`_read_out`), an (FRAME_ROWS, 3) array: the body's rotation
+# (rows 0-2) and position, velocities and their finite differences, the foot centres, and the compliant
+# contact's forces, normals and points; its flat view holds the normal forces and the quaternion.
+POSITION, LINEAR, ANGULAR, LINEAR_RATE, ANGULAR_RATE = 3, 4, 5, 6, 7
+CENTERS, FORCES, NORMALS, POINTS = 8, 14, 20, 26
+NORMAL_FORCES, QUATERNION = 3 * 32, 3 * 34      # flat indices
+FRAME_ROWS = 36
+NO_CONTACT, COMPLIANT_CONTACT = 0, 1     # what the state read-out computes besides the state
+NO_RULE = -1                            # a terrain's candidate boxes found in Python (Terrain.candidate_rule)
 
-    @staticmethod
-    def zero() -> "BodyState":
-        zero = np.zeros(3)
-        return BodyState(0.0, np.eye(4), np.array([0.0, 0.0, 0.0, 1.0]), zero, zero, zero, zero,
-                         np.zeros(18), np.zeros(18), zero, None, None)
+
+def _contact_flags() -> tuple[np.ndarray, ...]:
+    """The (6,) bool contact flags of each set of touching feet (bits), shared by the steps that
+    have it: read-only."""
+    flags = []
+    for bits in range(64):
+        flag = np.array([(bits >> leg) & 1 == 1 for leg in range(6)])
+        flag.flags.writeable = False
+        flags.append(flag)
+    return tuple(flags)
+
+
+IN_CONTACT = _contact_flags()
 
 
 # The state read-out is compiled with numba: it is a few dozen scalar operations per leg, which
-# numpy (and DART's per-body getters, ~6 us a call) made a tenth of the whole run loop.
+# numpy (and DART's per-body getters, ~6 us a call) made a tenth of the whole run loop. The
+# compliant contact of the next step is computed in the same call: it depends only on this state,
+# and a second compiled call, with its arguments and its six returned arrays, cost ~5 us a step.
 @njit(cache=True)
-def _body_state(positions, velocities, previous_linear, previous_angular, dt, base_angle, base_distance, a2, a3):
-    """Finiteness; world_from_body (4, 4); the body's quaternion, world-frame velocities and their
-    finite differences over the step, in one (16,) array (four arrays fewer to hand back: numba
-    boxes each returned array at ~0.5 us); the foot centres (6, 3) and the tibias' motion and pose
-    (6, 6, 3) (kinematics.WorldFeet, packed as CompliantContact.compute's `links`)."""
+def _read_out(positions, velocities, previous, parameters, contact_mode, anchors, contact_parameters, box_centers,
+              box_halves, box_rotations, rule, rule_data, applied_forces, applied_offsets):
+    """The (FRAME_ROWS, 3) frame of the state (its rows: above): world_from_body, the body's
+    world-frame velocities and their finite differences over the step (`previous`, (6,), holds the
+    linear and angular velocity one step earlier and is updated in place), the quaternion, the foot
+    centres by eq. 2; with COMPLIANT_CONTACT also the hard-finger contact of the next step
+    (`_contact_into`, on the boxes the terrain's candidate `rule` finds). Then the touching feet as
+    bits (leg i: 1 << i), -1 if a coordinate or rate is not finite; and world_from_body[2, 2].
+    `parameters`: dt, a2, a3, then the six base angles and the six base distances."""
+    dt, a2, a3, base_angle, base_distance = parameters[0], parameters[1], parameters[2], parameters[3:9], parameters[9:15]
+    frame = np.zeros((FRAME_ROWS, 3))
     transform = free_joint_transform(positions)
     rotation = transform[:3, :3]
     twist = free_joint_twist(rotation, velocities)
@@ -342,17 +404,77 @@ def _body_state(positions, velocities, previous_linear, previous_angular, dt, ba
         linear[i] = rotation[i, 0] * twist[3] + rotation[i, 1] * twist[4] + rotation[i, 2] * twist[5]
     # Finite differences of the body velocity over the step: DART's own accelerations miss the
     # servo and contact constraint impulses, which are part of what an accelerometer feels.
-    linear_acceleration = (linear - previous_linear) / dt
-    angular_acceleration = (angular - previous_angular) / dt
-    finite = np.isfinite(positions).all() and np.isfinite(velocities).all()
+    for i in range(3):
+        frame[LINEAR_RATE, i] = (linear[i] - previous[i]) / dt
+        frame[ANGULAR_RATE, i] = (angular[i] - previous[3 + i]) / dt
+        frame[LINEAR, i], frame[ANGULAR, i], frame[POSITION, i] = linear[i], angular[i], transform[i, 3]
+        for j in range(3):
+            frame[i, j] = rotation[i, j]
+    previous[0:3], previous[3:6] = linear, angular
+    flat = frame.reshape(-1)
+    flat[QUATERNION:QUATERNION + 4] = rotation_to_quaternion(rotation)
+    if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
+        return frame, -1, rotation[2, 2]
     centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
         rotation, transform[:3, 3], angular, linear, positions[6:], velocities[6:], base_angle, base_distance, a2, a3)
-    body = np.empty(16)
-    body[0:4] = rotation_to_quaternion(rotation)
-    body[4:7], body[7:10], body[10:13], body[13:16] = linear, angular, linear_acceleration, angular_acceleration
-    links = np.empty((6, 6, 3))
-    links[:, 0], links[:, 1], links[:, 2:5], links[:, 5] = feet_velocities, spins, rotations, origins
-    return finite, transform, body, centers, links
+    frame[CENTERS:CENTERS + 6] = centers
+    if contact_mode == NO_CONTACT:
+        return frame, 0, rotation[2, 2]
+    candidates = candidates_by_rule(centers, rule, rule_data)
+    bits = _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
+                         box_centers, box_halves, box_rotations, candidates, applied_forces, applied_offsets)
+    return frame, bits, rotation[2, 2]
+
+
+@njit(cache=True)
+def _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters, box_centers,
+                  box_halves, box_rotations, candidates, applied_forces, applied_offsets):
+    """The hard-finger contact (contact.hard_finger_into, `anchors` updated in place) into the frame's
+    contact rows; the forces of the touching feet and their points in the tibias' frames into
+    `applied_forces` and `applied_offsets`. Returns the touching feet as bits."""
+    local_points = np.empty((6, 3))
+    bits = hard_finger_into(centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
+                            box_centers, box_halves, box_rotations, candidates, frame[FORCES:FORCES + 6],
+                            frame.reshape(-1)[NORMAL_FORCES:NORMAL_FORCES + 6], frame[NORMALS:NORMALS + 6],
+                            frame[POINTS:POINTS + 6], local_points)
+    for leg in range(6):
+        if (bits >> leg) & 1:
+            for i in range(3):
+                applied_forces[leg, i] = frame[FORCES + leg, i]
+                applied_offsets[leg, i] = local_points[leg, i]
+    return bits
+
+
+@njit(cache=True)
+def _contact_of_frame(frame, positions, velocities, parameters, anchors, contact_parameters, box_centers, box_halves,
+                      box_rotations, candidates, applied_forces, applied_offsets):
+    """`_read_out`'s contact with candidate boxes found after it: the feet's motion again from the
+    frame's pose and velocities (the same numbers, so the same feet), then the same model."""
+    a2, a3, base_angle, base_distance = parameters[1], parameters[2], parameters[3:9], parameters[9:15]
+    centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
+        frame[0:3], frame[POSITION], frame[ANGULAR], frame[LINEAR], positions[6:], velocities[6:], base_angle,
+        base_distance, a2, a3)
+    return _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
+                         box_centers, box_halves, box_rotations, candidates, applied_forces, applied_offsets)
+
+
+@njit(cache=True)
+def _corners_in_ground(corners, frame, box_centers, box_halves, box_rotations, rule, rule_data):
+    """Whether any of the body's `corners` (body frame) lies inside a candidate box of the terrain:
+    the corners placed as numpy's `corners @ R.T + p` places them (kinematics.rows_times_matrix), the
+    candidates by the terrain's `rule` (Terrain.candidate_rule)."""
+    world = rows_times_matrix(corners, frame[0:3].T, np.empty_like(corners))
+    for row in range(len(world)):
+        for i in range(3):
+            world[row, i] += frame[POSITION, i]
+    candidates = candidates_by_rule(world, rule, rule_data)
+    normal = np.empty(3)
+    for row in range(len(world)):
+        for j in range(candidates.shape[1]):
+            box = candidates[row, j]
+            if _box_distance(world[row], box_centers[box], box_halves[box], box_rotations[box], normal) < 0.0:
+                return True
+    return False
 
 
 # The body's pose and twist from the root FreeJoint's coordinates and rates, as DART computes them

@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from testbed.terrain import candidates_by_rule, closest_distance
+
 
 def support_polygon(points_xy: np.ndarray) -> np.ndarray:
     """(K, 2) counter-clockwise convex hull of the contact points (fewer than 3: the points,
@@ -47,6 +49,26 @@ def stance_support(last_touch: np.ndarray, contact: np.ndarray, swinging: np.nda
         supporting[leg] = resting[leg] or recent
     polygon = _monotone_chain(np.ascontiguousarray(feet[supporting, :2]))
     return polygon, _margin(polygon, com[0], com[1]), late
+
+
+@njit(cache=True)
+def stance_support_on_terrain(last_touch, contact, swinging, t, feet, com, debounce, radius, tolerance, box_centers,
+                              box_halves, box_rotations, rule, rule_data):
+    """The support polygon and the margin of `stance_support` in one compiled call with the terrain's
+    answer for the late stance feet: a late foot rests on the ground if its sphere (`radius`) is
+    within `tolerance` of the terrain (Terrain.closest, its candidate boxes by the terrain's
+    `rule`, Terrain.candidate_rule), and the support is asked again with the resting feet."""
+    resting = np.zeros(len(feet), np.bool_)
+    polygon, margin, late = stance_support(last_touch, contact, swinging, t, feet, com, debounce, resting)
+    if late == 0:
+        return polygon, margin
+    candidates = candidates_by_rule(feet, rule, rule_data)
+    for leg in range(len(feet)):
+        if (late >> leg) & 1:
+            distance = closest_distance(feet[leg], box_centers, box_halves, box_rotations, candidates[leg])
+            resting[leg] = distance - radius <= tolerance
+    polygon, margin, _ = stance_support(last_touch, contact, swinging, t, feet, com, debounce, resting)
+    return polygon, margin
 
 
 @njit(cache=True)

@@ -76,3 +76,26 @@ def test_compiled_digitizing_gives_numpys_bits():
     previous = rng.random(len(forces)) < 0.5
     np.testing.assert_array_equal(contact_hysteresis(forces, previous, 1.0, 0.5),
                                   (forces > 1.0) | (previous & (forces >= 0.5)))
+
+
+def test_fault_free_encoder_and_foot_samples_in_one_call_equal_the_measure_path():
+    """The one-call readings of a noisy sensor without faults against `measure` (corrupt, faults,
+    digitize) on the same noise stream, bit for bit: angles past the wrap, forces past full scale,
+    through the contact hysteresis."""
+    from sensors.encoders import Encoders
+    from sensors.foot import FootSensors
+    config = sensors_config()
+    rng = np.random.default_rng(3)
+    pairs = [(Encoders(config.encoder, 4, ()), Encoders(config.encoder, 4, ())),
+             (FootSensors(config.foot, 4, ()), FootSensors(config.foot, 4, ()))]
+    for fast, slow in pairs:
+        slow._plain = False
+        assert fast._plain
+        for k in range(3000):
+            state = truth(k * 1e-3, joint_positions=rng.uniform(-4.0, 4.0, 18),
+                          foot_forces=rng.choice([0.0, 0.7, 1.2, 49.99, 60.0], 6) + rng.normal(0.0, 0.3, 6))
+            for ours, theirs in zip(fast.samples_at(state, k * 1e-3), slow.samples_at(state, k * 1e-3), strict=True):
+                for name, value in vars(ours).items():
+                    assert np.array_equal(np.asarray(value), np.asarray(vars(theirs)[name]))
+                    if np.asarray(value).dtype == np.float64:
+                        assert np.array_equal(np.asarray(value).view(np.uint64), np.asarray(vars(theirs)[name]).view(np.uint64))

@@ -105,12 +105,13 @@ def test_same_seed_same_run(contact):
 
 def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypatch):
     """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
-    comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted."""
-    from testbed import contact
+    comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted. (The
+    state read-out computes the contact: its first call is at t = 0, its 50th after step 49.)"""
+    from testbed import simulation
     from testbed.recording import NullRecorder
     from testbed.runner import run
 
-    kernel, calls = contact._hard_finger, []
+    kernel, calls = simulation._read_out, []
 
     def interrupted_at_the_50th_step(*args):
         calls.append(1)
@@ -121,7 +122,7 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
                 raise SystemError("<function _numba_unpickle> returned a result with an exception set") from interrupt
         return kernel(*args)
 
-    monkeypatch.setattr(contact, "_hard_finger", interrupted_at_the_50th_step)
+    monkeypatch.setattr(simulation, "_read_out", interrupted_at_the_50th_step)
     finished = []
     recorder = NullRecorder()
     monkeypatch.setattr(recorder, "finish", lambda metrics, error: finished.append(error))
@@ -131,12 +132,12 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
 
 
 def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
-    from testbed import contact
+    from testbed import simulation
     from testbed.runner import run
 
     def broken(*args):
         raise SystemError("something else")
 
-    monkeypatch.setattr(contact, "_hard_finger", broken)
+    monkeypatch.setattr(simulation, "_read_out", broken)
     with pytest.raises(SystemError, match="something else"):
         run(config.load(overrides={"run": {"duration": 0.05}}))

@@ -233,3 +233,43 @@ def test_support_counts_touching_feet_and_stance_feet_resting_on_the_ground():
     # support without a contact report; the hanging stance foot never does.
     assert np.allclose(polygon(0.5 * CONTACT_DEBOUNCE, np.zeros(6, bool)), support_polygon(feet[[0, 1, 2, 3, 4], :2]))
     assert np.allclose(polygon(2 * CONTACT_DEBOUNCE, np.zeros(6, bool)), support_polygon(feet[[0, 1, 2, 4], :2]))
+
+
+@pytest.mark.parametrize("name", ["step", "rough"])
+def test_support_on_terrain_in_one_call_equals_the_two_call_path(name):
+    """SupportTracker's one compiled call (late stance feet asked of the terrain inside it) against
+    stance_support, Terrain.closest and stance_support again, bit for bit; so is its Python path
+    for a terrain with candidate boxes of its own."""
+    from types import SimpleNamespace
+    from testbed.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
+    from testbed.terrain import make_terrain
+    from tests.testbed.test_terrain import OwnCandidates
+    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(2))
+    radius = CFG.robot.foot_radius
+    support, last_touch = SupportTracker(terrain, radius), np.full(6, -np.inf)
+    own = SupportTracker(OwnCandidates.of(make_terrain(name, CFG.terrain, np.random.default_rng(2))), radius)
+    rng = np.random.default_rng(7)
+    asked = 0
+    for step in range(600):
+        t = 0.001 * step
+        feet = np.column_stack([rng.uniform(-0.2, 0.5, (6, 2)), np.zeros(6)])
+        ground = np.array([terrain.closest(foot[None])[0][0] for foot in feet])
+        feet[:, 2] = radius - ground + rng.choice([0.0, 0.5, 0.99, 1.01, 3.0], 6) * GROUND_TOLERANCE
+        com = rng.normal(0.0, 0.05, 3)
+        contact, swinging = rng.random(6) < 0.2, rng.random(6) < 0.3
+        truth = SimpleNamespace(t=t, foot_contact=contact, foot_positions=feet, com_position=com)
+        polygon, margin = support.polygon_and_margin(truth, swinging)
+        args = (last_touch, contact, swinging, t, feet, com, CONTACT_DEBOUNCE)
+        expected, expected_margin, late_bits = stance_support(*args, np.zeros(6, bool))
+        if late_bits:
+            asked += 1
+            late = (late_bits >> np.arange(6)) & 1 == 1
+            resting = np.zeros(6, dtype=bool)
+            resting[late] = terrain.closest(feet[late])[0] - radius <= GROUND_TOLERANCE
+            expected, expected_margin, _ = stance_support(*args, resting)
+        own_polygon, own_margin = own.polygon_and_margin(truth, swinging)
+        for ours in ((polygon, margin), (own_polygon, own_margin)):
+            np.testing.assert_array_equal(ours[0], expected)
+            assert ours[1] == expected_margin
+        np.testing.assert_array_equal(support.last_touch, last_touch)
+    assert asked > 100
