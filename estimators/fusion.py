@@ -292,8 +292,9 @@ class FusionEstimator(Estimator):
         # itself (1.4 of the 5 us an IMU sample took in a replay, three times that in the run loop).
         if type(sample) is ImuSample and self.state is not None and self._body_from_imu is None:
             gyro, accel = sample.gyro, sample.accel
+            # (dtypes compared by value: arrays that numba boxed carry their own float64 dtype object)
             if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
-                    and gyro.dtype is FLOAT64 and accel.dtype is FLOAT64:
+                    and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64:
                 return self._update_imu(sample.t, gyro, accel)
         return super().update(sample)
 
