@@ -9,14 +9,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.config import Config
 from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.kinematics import LegGeometry, foot_positions, joint_targets_or_last
+from testbed.kinematics import LegGeometry, _elbow_sign, foot_positions, solve_legs_or_last
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.posture import PostureController, PostureMeasurement, estimated_height, kinematic_height
+from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height,
+                             tilted_targets)
 from testbed.recording import Command
 from testbed.startup import CalibrationPoses
 
@@ -25,6 +27,8 @@ from testbed.startup import CalibrationPoses
 # ramp one time constant late, and the gap left when the command stops decays as exp(-t / tau), so
 # at its scheduled touch-down the foot is e^-2 of a lag (0.7 mm tripod, 1.4 mm wave) from the ground.
 SWING_LEAD_TIME_CONSTANTS = 2.0
+STILL = Twist()
+KNEE_UP = _elbow_sign("up")
 
 
 def make_estimator_or_none(name: str, config: Config):
@@ -74,24 +78,31 @@ class Pilot:
         loop: a test-only switch that feeds ground truth, to tell the estimator's share of the
         posture error from the controller's."""
         estimates = self._absorb(samples)
-        walking = self._walking(t)
-        twist = self._twist(t) if walking else Twist()
-        gait_time = t - self.startup_time
+        startup_time = self.startup_time
+        walking = self.walking_gait and t >= startup_time
+        twist = self._twist(t) if walking else STILL
+        gait, gait_time = self.gait, t - startup_time
         if walking:
-            feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
+            feet = gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
-            feet = self.gait.state.feet.copy()
+            feet = gait.state.feet.copy()
+        correction = NO_CORRECTION
         if self.posture is not None:
             # The loops engage once the start-up (still, then the calibration poses) is over.
-            if t >= self.startup_time:
+            if t >= startup_time:
                 self.posture.update(self._posture_measurement(attitude), hold=self.ik_limited_last)
-            feet = self.posture.apply(feet)
-        if t < self.startup_time:
-            feet = self.startup.apply(t, feet)
-        self._solve_ik(feet)
-        command = Command(t=t, phase=self.gait.phase(self.gait.clock(gait_time)), swinging=self.gait.state.swinging.copy(),
-                          foot_targets=feet, joint_targets=self.joint_targets.copy(),
-                          body_twist=np.array([twist.vx, twist.vy, twist.wz]))
+            correction = self.posture.correction
+        tilt = self.startup.body_tilt(t) if t < startup_time else (0.0, 0.0)
+        g = self.geometry
+        feet, self.joint_targets, reachable = _body_targets_and_joints(
+            feet, self.posture is not None, *correction, *tilt, g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia,
+            g.lower, g.upper, self.joint_targets)
+        limited = not reachable
+        self.ik_limited_last = limited
+        self.ik_limited_ticks += limited
+        # joint_targets: a new array every tick (the IK's), never written afterwards
+        command = Command(t, gait.phase(gait.clock(gait_time)), gait.state.swinging.copy(), feet, self.joint_targets,
+                          np.array([twist.vx, twist.vy, twist.wz]))
         return command, estimates
 
     def _measured_feet(self) -> np.ndarray:
@@ -153,16 +164,28 @@ class Pilot:
         correction = min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate)
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
 
-    def _solve_ik(self, feet: np.ndarray) -> None:
-        """Joint targets for the foot targets; a leg whose target is out of reach keeps its last
-        joint targets (the body gives way rather than the leg overreaching), and the tick counts."""
-        self.joint_targets, reachable = joint_targets_or_last(self.geometry, feet, self.joint_targets)
-        limited = not reachable
-        self.ik_limited_last = limited
-        self.ik_limited_ticks += limited
-
 
 def terrain_adaptation(config: Config) -> TerrainAdaptation:
     posture = config.posture
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
                              posture.walk_plane_time_constant)
+
+
+NO_CORRECTION = (0.0, 0.0, 0.0)
+
+
+# Compiled: the posture correction, the start-up tilt and the inverse kinematics were three calls
+# (each ~1 us of dispatch and a boxed array, more in the run loop's cold caches).
+@njit(cache=True)
+def _body_targets_and_joints(feet, posture, correction_roll, correction_pitch, correction_height, tilt_roll, tilt_pitch,
+                             c0, s0, a01, a2, a3, lower, upper, last):
+    """The gait-frame foot targets (6, 3) in the body frame: through the posture correction (as
+    PostureController.apply) and the start-up pose (as CalibrationPoses.apply); then their joint
+    angles, a leg out of reach keeping its `last` ones (joint_targets_or_last). Returns (targets,
+    joint angles, whether every leg reached its target)."""
+    if posture:
+        feet = tilted_targets(feet, correction_roll, correction_pitch, correction_height)
+    if not (tilt_roll == 0.0 and tilt_pitch == 0.0):
+        feet = tilted_targets(feet, tilt_roll, tilt_pitch, 0.0)
+    joints, reachable = solve_legs_or_last(feet, c0, s0, a01, a2, a3, lower, upper, KNEE_UP, last)
+    return feet, joints, reachable
