@@ -18,7 +18,7 @@ from testbed.kinematics import LegGeometry, _elbow_sign, foot_positions, solve_l
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
 from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height,
-                             tilted_targets)
+                             tilted_targets, untilted_positions)
 from testbed.recording import Command
 from testbed.startup import CalibrationPoses
 
@@ -60,6 +60,10 @@ class Pilot:
         self.joint_targets = np.array(start_joints, dtype=float)
         self.encoder_positions = np.array(start_joints, dtype=float)
         self.encoder_feet = foot_positions(geometry, self.encoder_positions)    # body frame, per encoder sample
+        # encoder_feet in the gait frame, made with the posture correction of the last tick (which
+        # the next tick's gait step uses); stale after an encoder sample
+        self._gait_frame_feet = np.empty((6, 3))
+        self._gait_frame_stale = True
         self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
@@ -94,9 +98,11 @@ class Pilot:
             correction = self.posture.correction
         tilt = self.startup.body_tilt(t) if t < startup_time else (0.0, 0.0)
         g = self.geometry
+        posture = self.posture is not None
         feet, self.joint_targets, reachable = _body_targets_and_joints(
-            feet, self.posture is not None, *correction, *tilt, g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia,
-            g.lower, g.upper, self.joint_targets)
+            feet, posture, *correction, *tilt, g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia, g.lower,
+            g.upper, self.joint_targets, self.encoder_feet, self._gait_frame_feet)
+        self._gait_frame_stale = not posture
         limited = not reachable
         self.ik_limited_last = limited
         self.ik_limited_ticks += limited
@@ -108,8 +114,9 @@ class Pilot:
     def _measured_feet(self) -> np.ndarray:
         """The feet where the encoders put them, in the gait frame (the body frame without the
         posture controller)."""
-        feet = self.encoder_feet
-        return feet if self.posture is None else self.posture.to_gait_frame(feet)
+        if self.posture is None:
+            return self.encoder_feet
+        return self.posture.to_gait_frame(self.encoder_feet) if self._gait_frame_stale else self._gait_frame_feet
 
     def _posture_measurement(self, attitude: tuple[float, float] | None) -> PostureMeasurement | None:
         estimate = self.latest_estimate
@@ -139,6 +146,7 @@ class Pilot:
             elif isinstance(sample, EncoderSample):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
+                self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(np.asarray(sample.positions), stance, self.heading.yaw)
         return estimates
@@ -174,17 +182,20 @@ def terrain_adaptation(config: Config) -> TerrainAdaptation:
 NO_CORRECTION = (0.0, 0.0, 0.0)
 
 
-# Compiled: the posture correction, the start-up tilt and the inverse kinematics were three calls
-# (each ~1 us of dispatch and a boxed array, more in the run loop's cold caches).
+# Compiled: the posture correction, the start-up tilt, the inverse kinematics and the encoders'
+# feet in the gait frame were four calls a tick (each ~1 us of dispatch and a boxed array, more in
+# the run loop's cold caches).
 @njit(cache=True)
 def _body_targets_and_joints(feet, posture, correction_roll, correction_pitch, correction_height, tilt_roll, tilt_pitch,
-                             c0, s0, a01, a2, a3, lower, upper, last):
+                             c0, s0, a01, a2, a3, lower, upper, last, encoder_feet, gait_frame_feet):
     """The gait-frame foot targets (6, 3) in the body frame: through the posture correction (as
     PostureController.apply) and the start-up pose (as CalibrationPoses.apply); then their joint
     angles, a leg out of reach keeping its `last` ones (joint_targets_or_last). Returns (targets,
-    joint angles, whether every leg reached its target)."""
+    joint angles, whether every leg reached its target). With the posture correction, also writes
+    `encoder_feet` in the gait frame into `gait_frame_feet` (as PostureController.to_gait_frame)."""
     if posture:
         feet = tilted_targets(feet, correction_roll, correction_pitch, correction_height)
+        untilted_positions(encoder_feet, correction_roll, correction_pitch, correction_height, gait_frame_feet)
     if not (tilt_roll == 0.0 and tilt_pitch == 0.0):
         feet = tilted_targets(feet, tilt_roll, tilt_pitch, 0.0)
     joints, reachable = solve_legs_or_last(feet, c0, s0, a01, a2, a3, lower, upper, KNEE_UP, last)

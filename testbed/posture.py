@@ -84,7 +84,7 @@ class PostureController:
 
     def to_gait_frame(self, feet: np.ndarray) -> np.ndarray:
         """Body-frame positions (6, 3) -> gait frame: the inverse of `apply`."""
-        return _untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output)
+        return untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output, np.empty_like(feet))
 
 
 # Compiled, with the products in numpy's order (rows_times_matrix): each transform was a handful
@@ -110,11 +110,12 @@ def tilted_targets(feet: np.ndarray, roll: float, pitch: float, height: float) -
 
 
 @njit(cache=True)
-def _untilted_positions(feet, roll, pitch, height):
-    """The inverse of tilted_targets: rows R p + d, numpy's `p @ R.T + d`."""
-    positions = rows_times_matrix(feet, correction_rotation(roll, pitch).T, np.empty_like(feet))
-    positions[:, 2] += height
-    return positions
+def untilted_positions(feet, roll, pitch, height, out):
+    """The inverse of tilted_targets, written into `out` (another array than `feet`): rows
+    R p + d, numpy's `p @ R.T + d`."""
+    rows_times_matrix(feet, correction_rotation(roll, pitch).T, out)
+    out[:, 2] += height
+    return out
 
 
 def kinematic_height(geometry: LegGeometry, joints: np.ndarray, stance: np.ndarray, roll: float,
