@@ -17,7 +17,7 @@ from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
 from testbed.kinematics import LegGeometry, _elbow_sign, foot_positions, solve_legs_or_last
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height,
+from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height, pi_step,
                              tilted_targets, untilted_positions)
 from testbed.recording import Command
 from testbed.startup import CalibrationPoses
@@ -76,6 +76,12 @@ class Pilot:
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
+        # The posture loops (roll, pitch, height) run in the per-tick kernel on their state and gains.
+        self._posture_loops = ()
+        self._posture_gains = NO_LOOP_GAINS
+        if self.posture is not None:
+            self._posture_loops = (self.posture.roll, self.posture.pitch, self.posture.height)
+            self._posture_gains = tuple(value for loop in self._posture_loops for value in loop.gains)
 
     def tick(self, t: float, samples: list[Sample], attitude: tuple[float, float] | None = None) -> tuple[Command, list]:
         """One control tick. `attitude` (roll, pitch) replaces the estimator's in the posture
@@ -90,18 +96,27 @@ class Pilot:
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
             feet = gait.state.feet.copy()
-        correction = NO_CORRECTION
-        if self.posture is not None:
-            # The loops engage once the start-up (still, then the calibration poses) is over.
-            if t >= startup_time:
-                self.posture.update(self._posture_measurement(attitude), hold=self.ik_limited_last)
-            correction = self.posture.correction
+        posture = self.posture is not None
+        # The loops engage once the start-up (still, then the calibration poses) is over.
+        measurement = self._posture_measurement(attitude) if posture and t >= startup_time else None
+        update = measurement is not None
+        roll, pitch, height_error = math.nan, math.nan, math.nan
+        if update:
+            roll, pitch, height = measurement
+            if height is not None:
+                height_error = height - self.posture.height_reference
+        state = NO_LOOP_STATE
+        if posture:
+            r, p, h = self._posture_loops
+            state = (r.integral, r.output, p.integral, p.output, h.integral, h.output)
         tilt = self.startup.body_tilt(t) if t < startup_time else (0.0, 0.0)
         g = self.geometry
-        posture = self.posture is not None
-        feet, self.joint_targets, reachable = _body_targets_and_joints(
-            feet, posture, *correction, *tilt, g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia, g.lower,
-            g.upper, self.joint_targets, self.encoder_feet, self._gait_frame_feet)
+        feet, self.joint_targets, reachable, state = _body_targets_and_joints(
+            feet, posture, update, roll, pitch, height_error, self.ik_limited_last, state, self._posture_gains, *tilt,
+            g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia, g.lower, g.upper, self.joint_targets,
+            self.encoder_feet, self._gait_frame_feet)
+        if posture:
+            r.integral, r.output, p.integral, p.output, h.integral, h.output = state
         self._gait_frame_stale = not posture
         limited = not reachable
         self.ik_limited_last = limited
@@ -179,24 +194,34 @@ def terrain_adaptation(config: Config) -> TerrainAdaptation:
                              posture.walk_plane_time_constant)
 
 
-NO_CORRECTION = (0.0, 0.0, 0.0)
+NO_LOOP_STATE = (0.0,) * 6     # (integral, output) of the roll, pitch and height loops
+NO_LOOP_GAINS = (1.0,) * 12    # (kp, ki, dt, limit) of each
 
 
-# Compiled: the posture correction, the start-up tilt, the inverse kinematics and the encoders'
-# feet in the gait frame were four calls a tick (each ~1 us of dispatch and a boxed array, more in
-# the run loop's cold caches).
+# Compiled: the posture loops, the posture correction, the start-up tilt, the inverse kinematics
+# and the encoders' feet in the gait frame were some ten Python and compiled calls a tick (each
+# compiled one ~1 us of dispatch and a boxed array, more in the run loop's cold caches).
 @njit(cache=True)
-def _body_targets_and_joints(feet, posture, correction_roll, correction_pitch, correction_height, tilt_roll, tilt_pitch,
+def _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state, gains, tilt_roll, tilt_pitch,
                              c0, s0, a01, a2, a3, lower, upper, last, encoder_feet, gait_frame_feet):
-    """The gait-frame foot targets (6, 3) in the body frame: through the posture correction (as
-    PostureController.apply) and the start-up pose (as CalibrationPoses.apply); then their joint
-    angles, a leg out of reach keeping its `last` ones (joint_targets_or_last). Returns (targets,
-    joint angles, whether every leg reached its target). With the posture correction, also writes
-    `encoder_feet` in the gait frame into `gait_frame_feet` (as PostureController.to_gait_frame)."""
+    """With `posture`: the roll, pitch and height loops (PostureController.update: `state` their
+    (integral, output) pairs, `gains` their PiLoop.gains) updated with this measurement when
+    `update` (a NaN height error leaves that loop as it is), then the gait-frame foot targets
+    (6, 3) through their correction (PostureController.apply), and `encoder_feet` written in the
+    gait frame into `gait_frame_feet` (PostureController.to_gait_frame). Then the start-up pose
+    (CalibrationPoses.apply) and the joint angles, a leg out of reach keeping its `last` ones
+    (joint_targets_or_last). Returns (targets, joint angles, whether every leg reached its target,
+    the loops' new state)."""
     if posture:
-        feet = tilted_targets(feet, correction_roll, correction_pitch, correction_height)
-        untilted_positions(encoder_feet, correction_roll, correction_pitch, correction_height, gait_frame_feet)
+        roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output = state
+        if update:
+            roll_integral, roll_output = pi_step(roll_integral, roll_output, roll, hold, *gains[0:4])
+            pitch_integral, pitch_output = pi_step(pitch_integral, pitch_output, pitch, hold, *gains[4:8])
+            height_integral, height_output = pi_step(height_integral, height_output, height_error, hold, *gains[8:12])
+        state = (roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output)
+        feet = tilted_targets(feet, roll_output, pitch_output, height_output)
+        untilted_positions(encoder_feet, roll_output, pitch_output, height_output, gait_frame_feet)
     if not (tilt_roll == 0.0 and tilt_pitch == 0.0):
         feet = tilted_targets(feet, tilt_roll, tilt_pitch, 0.0)
     joints, reachable = solve_legs_or_last(feet, c0, s0, a01, a2, a3, lower, upper, KNEE_UP, last)
-    return feet, joints, reachable
+    return feet, joints, reachable, state
