@@ -195,6 +195,12 @@ class BiasStepDetector:
         self._sum += correction
         self._covariance += covariance
 
+    @property
+    def sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """The window's sums of corrections (3,) and of their covariances (3, 3), which `add`
+        adds to in place (compiled updates add to them themselves)."""
+        return self._sum, self._covariance
+
     def check(self, t: float, q: rot.Quaternion) -> bool:
         """At the end of each window: True when the bias moved (q: the current attitude)."""
         if self._start is None:
@@ -215,7 +221,8 @@ class FusionEstimator(Estimator):
     and the output.
 
     Subclasses hold the filter core: `state` (NominalState), `P` (30x30 error covariance) and the
-    three methods below, which call `_record_tilt_correction` after every applied update. The
+    three methods below, which record every applied update's tilt correction
+    (`_record_tilt_correction`, or `bias_steps.sums` in a compiled update). The
     filter steps (`_step`) at every encoder sample, and every MAX_STEP without them; between steps
     each IMU sample only adds to the preintegration and the attitude it reports.
     """
