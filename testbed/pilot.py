@@ -148,14 +148,15 @@ class Pilot:
 
     def _absorb(self, samples: list[Sample]) -> list:
         estimates = []
+        estimator, heading = self.estimator, self.heading
         for sample in samples:
-            if self.estimator is not None:
-                estimate = self.estimator.update(sample)
+            if estimator is not None:
+                estimate = estimator.update(sample)
                 if estimate is not None:
                     estimates.append(estimate)
                     self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
-                self.heading.update(sample.t, sample.gyro)
+                heading.update(sample.t, sample.gyro)
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):
@@ -163,12 +164,8 @@ class Pilot:
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
                 self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
-                self.odometry.update(np.asarray(sample.positions), stance, self.heading.yaw)
+                self.odometry.update(self.encoder_positions, stance, heading.yaw)
         return estimates
-
-    def _walking(self, t: float) -> bool:
-        """Walking gaits start after the start-up: the still robot and its calibration poses."""
-        return self.walking_gait and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
         """The body twist at time t, once walking."""
