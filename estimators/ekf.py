@@ -128,13 +128,19 @@ def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, varianc
 @njit(cache=True)
 def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, variance: float, gate: float, consider: bool,
                  dx: np.ndarray, tilt_cov: np.ndarray, q: rot.Quaternion, bias: np.ndarray, velocity: np.ndarray,
-                 accel_bias: np.ndarray, accel_cross: np.ndarray, feet: np.ndarray) -> tuple:
+                 accel_bias: np.ndarray, accel_cross: np.ndarray, feet: np.ndarray, tilt_sum: np.ndarray,
+                 tilt_cov_sum: np.ndarray) -> tuple:
     """`update_feet` with the feet's kinematics `measured` ((n, 3), legs `legs`), then the
-    correction injected into the nominal state (its arrays in place). Returns (accepted, new q)."""
+    correction injected into the nominal state (its arrays in place) and its tilt part and that
+    part's covariance added to `tilt_sum` and `tilt_cov_sum` (BiasStepDetector.add, in place).
+    Returns (accepted, new q, whether any foot was)."""
     accepted = update_feet(P, measured - feet[legs], legs, variance, gate, consider, dx, tilt_cov)
-    if accepted.any():
+    applied = accepted.any()
+    if applied:
         q = inject_arrays(q, dx, bias, velocity, accel_bias, accel_cross, feet)
-    return accepted, q
+        tilt_sum += dx[0:3]
+        tilt_cov_sum += tilt_cov
+    return accepted, q, applied
 
 
 @njit(cache=True)
@@ -198,11 +204,12 @@ class EkfEstimator(FusionEstimator):
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
         state, dx, tilt_cov = self.state, self._dx, self._tilt_cov
-        accepted, q = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx, tilt_cov,
-                                   state.q, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
-        if np.count_nonzero(accepted):
+        # The tilt correction is recorded (_record_tilt_correction) inside the kernel.
+        accepted, q, applied = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx,
+                                            tilt_cov, state.q, state.bias, state.velocity, state.accel_bias,
+                                            state.accel_cross, state.feet, *self.bias_steps.sums)
+        if applied:
             state.q = q
-            self._record_tilt_correction(dx[THETA].copy(), tilt_cov.copy())
         return accepted
 
     def _correct(self, H: np.ndarray, innovation: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:

@@ -195,6 +195,12 @@ class BiasStepDetector:
         self._sum += correction
         self._covariance += covariance
 
+    @property
+    def sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """The window's sums of corrections (3,) and of their covariances (3, 3), which `add`
+        adds to in place (compiled updates add to them themselves)."""
+        return self._sum, self._covariance
+
     def check(self, t: float, q: rot.Quaternion) -> bool:
         """At the end of each window: True when the bias moved (q: the current attitude)."""
         if self._start is None:
@@ -215,7 +221,8 @@ class FusionEstimator(Estimator):
     and the output.
 
     Subclasses hold the filter core: `state` (NominalState), `P` (30x30 error covariance) and the
-    three methods below, which call `_record_tilt_correction` after every applied update. The
+    three methods below, which record every applied update's tilt correction
+    (`_record_tilt_correction`, or `bias_steps.sums` in a compiled update). The
     filter steps (`_step`) at every encoder sample, and every MAX_STEP without them; between steps
     each IMU sample only adds to the preintegration and the attitude it reports.
     """
@@ -232,6 +239,7 @@ class FusionEstimator(Estimator):
         self.accel_gate = float(chi2.ppf(params.accel_gate_probability, 3))
         # Squared body acceleration beyond which a specific force sample is an outlier.
         self._accel_gate = self.accel_gate * self.noise.body_accel
+        self._body_variance = self.noise.body_accel
         self.foot_gate = float(chi2.ppf(params.foot_gate_probability, 3))
         self.legs = StanceTracker(geometry, params.stance_min_force, self.imu_position)
         self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
@@ -292,8 +300,9 @@ class FusionEstimator(Estimator):
         # itself (1.4 of the 5 us an IMU sample took in a replay, three times that in the run loop).
         if type(sample) is ImuSample and self.state is not None and self._body_from_imu is None:
             gyro, accel = sample.gyro, sample.accel
+            # (dtypes compared by value: arrays that numba boxed carry their own float64 dtype object)
             if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
-                    and gyro.dtype is FLOAT64 and accel.dtype is FLOAT64:
+                    and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64:
                 return self._update_imu(sample.t, gyro, accel)
         return super().update(sample)
 
@@ -302,19 +311,22 @@ class FusionEstimator(Estimator):
         if self.state is None:
             return self._initialise(t, gyro, accel)
         dt, buffer = t - self.t, self.pre.buffer
-        status, *attitude = imu_sample(buffer, ZERO if gyro is None else gyro, ZERO if accel is None else accel,
-                                       gyro is not None, accel is not None, max(dt, 0.0), self.gravity,
-                                       self._accel_gate, self.noise.body_accel)
+        status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(
+            buffer, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
+            accel is not None, max(dt, 0.0), self.gravity, self._accel_gate, self._body_variance)
         if dt > 0:
             self.t = t
+        nominal = False      # the sample's attitude gives way to the nominal one after a restart or a step
         if status == ACCEPTED:
             self._accel_rejected_since = None
         elif status == REJECTED and self._accel_rejected(t, accel):
-            attitude = None
+            nominal = True
         if buffer[DT] >= MAX_STEP:
             self._step()
-            attitude = None
-        return self._estimate(t, attitude)
+            nominal = True
+        if nominal:
+            return self._estimate(t)
+        return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw)
 
     def _accel_rejected(self, t: float, accel: np.ndarray) -> bool:
         """Count a specific force beyond the gate (integrated as gravity alone). Returns True when
@@ -458,14 +470,16 @@ class FusionEstimator(Estimator):
 
     # -- output --------------------------------------------------------------------------------
 
-    def _estimate(self, t: float, attitude: list | None = None) -> Estimate:
-        """The attitude of this sample (qx, qy, qz, qw, roll, pitch, yaw; None: the nominal's); its
-        covariance, the bias and the terrain of the last step (they change little within a step,
-        and are recomputed only there)."""
-        if attitude is None:
-            q = self.state.q
-            attitude = [*q, *rot.euler_from_quaternion(q)]
-        qx, qy, qz, qw, roll, pitch, yaw = attitude
+    def _estimate(self, t: float) -> Estimate:
+        """The estimate with the nominal attitude."""
+        q = self.state.q
+        return self._attitude_estimate(t, *q, *rot.euler_from_quaternion(q))
+
+    def _attitude_estimate(self, t: float, qx: float, qy: float, qz: float, qw: float, roll: float, pitch: float,
+                           yaw: float) -> Estimate:
+        """The estimate with this attitude (qx, qy, qz, qw, roll, pitch, yaw); its covariance, the
+        bias and the terrain of the last step (they change little within a step, and are
+        recomputed only there)."""
         if self._output is None:
             self._output = self._step_output(t, roll, pitch, yaw)
         return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output)

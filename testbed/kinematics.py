@@ -261,8 +261,8 @@ def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarr
     out of reach keeping its `last` angles, and whether every leg reached its target. The angles
     of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
     the mask's `all`)."""
-    return _solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
-                               geom.lower, geom.upper, _elbow_sign("up"), last)
+    return solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
+                              geom.lower, geom.upper, _elbow_sign("up"), last)
 
 
 def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
@@ -333,7 +333,8 @@ def _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, fallback
 
 
 @njit(cache=True)
-def _solve_legs_or_last(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last):
+def solve_legs_or_last(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last):
+    """joint_targets_or_last on the geometry's arrays (compiled; callable from other kernels)."""
     q, status = _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last)
     return q, np.all(status == REACHABLE)
 

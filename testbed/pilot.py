@@ -9,14 +9,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.config import Config
 from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.kinematics import LegGeometry, foot_positions, joint_targets_or_last
+from testbed.kinematics import LegGeometry, _elbow_sign, foot_positions, solve_legs_or_last
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
-from testbed.posture import PostureController, PostureMeasurement, estimated_height, kinematic_height
+from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height, pi_step,
+                             tilted_targets, untilted_positions)
 from testbed.recording import Command
 from testbed.startup import CalibrationPoses
 
@@ -25,6 +27,8 @@ from testbed.startup import CalibrationPoses
 # ramp one time constant late, and the gap left when the command stops decays as exp(-t / tau), so
 # at its scheduled touch-down the foot is e^-2 of a lag (0.7 mm tripod, 1.4 mm wave) from the ground.
 SWING_LEAD_TIME_CONSTANTS = 2.0
+STILL = Twist()
+KNEE_UP = _elbow_sign("up")
 
 
 def make_estimator_or_none(name: str, config: Config):
@@ -56,6 +60,10 @@ class Pilot:
         self.joint_targets = np.array(start_joints, dtype=float)
         self.encoder_positions = np.array(start_joints, dtype=float)
         self.encoder_feet = foot_positions(geometry, self.encoder_positions)    # body frame, per encoder sample
+        # encoder_feet in the gait frame, made with the posture correction of the last tick (which
+        # the next tick's gait step uses); stale after an encoder sample
+        self._gait_frame_feet = np.empty((6, 3))
+        self._gait_frame_stale = True
         self.latest_estimate = None
         self.estimator = make_estimator_or_none(config.run.estimator, config)
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
@@ -68,37 +76,62 @@ class Pilot:
         self.foot_contact = np.ones(6, dtype=bool)
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
+        # The posture loops (roll, pitch, height) run in the per-tick kernel on their state and gains.
+        self._posture_loops = ()
+        self._posture_gains = NO_LOOP_GAINS
+        if self.posture is not None:
+            self._posture_loops = (self.posture.roll, self.posture.pitch, self.posture.height)
+            self._posture_gains = tuple(value for loop in self._posture_loops for value in loop.gains)
 
     def tick(self, t: float, samples: list[Sample], attitude: tuple[float, float] | None = None) -> tuple[Command, list]:
         """One control tick. `attitude` (roll, pitch) replaces the estimator's in the posture
         loop: a test-only switch that feeds ground truth, to tell the estimator's share of the
         posture error from the controller's."""
         estimates = self._absorb(samples)
-        walking = self._walking(t)
-        twist = self._twist(t) if walking else Twist()
-        gait_time = t - self.startup_time
+        startup_time = self.startup_time
+        walking = self.walking_gait and t >= startup_time
+        twist = self._twist(t) if walking else STILL
+        gait, gait_time = self.gait, t - startup_time
         if walking:
-            feet = self.gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
+            feet = gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
         else:
-            feet = self.gait.state.feet.copy()
-        if self.posture is not None:
-            # The loops engage once the start-up (still, then the calibration poses) is over.
-            if t >= self.startup_time:
-                self.posture.update(self._posture_measurement(attitude), hold=self.ik_limited_last)
-            feet = self.posture.apply(feet)
-        if t < self.startup_time:
-            feet = self.startup.apply(t, feet)
-        self._solve_ik(feet)
-        command = Command(t=t, phase=self.gait.phase(self.gait.clock(gait_time)), swinging=self.gait.state.swinging.copy(),
-                          foot_targets=feet, joint_targets=self.joint_targets.copy(),
-                          body_twist=np.array([twist.vx, twist.vy, twist.wz]))
+            feet = gait.state.feet.copy()
+        posture = self.posture is not None
+        # The loops engage once the start-up (still, then the calibration poses) is over.
+        measurement = self._posture_measurement(attitude) if posture and t >= startup_time else None
+        update = measurement is not None
+        roll, pitch, height_error = math.nan, math.nan, math.nan
+        if update:
+            roll, pitch, height = measurement
+            if height is not None:
+                height_error = height - self.posture.height_reference
+        state = NO_LOOP_STATE
+        if posture:
+            r, p, h = self._posture_loops
+            state = (r.integral, r.output, p.integral, p.output, h.integral, h.output)
+        tilt = self.startup.body_tilt(t) if t < startup_time else (0.0, 0.0)
+        g = self.geometry
+        feet, self.joint_targets, reachable, state = _body_targets_and_joints(
+            feet, posture, update, roll, pitch, height_error, self.ik_limited_last, state, self._posture_gains, *tilt,
+            g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia, g.lower, g.upper, self.joint_targets,
+            self.encoder_feet, self._gait_frame_feet)
+        if posture:
+            r.integral, r.output, p.integral, p.output, h.integral, h.output = state
+        self._gait_frame_stale = not posture
+        limited = not reachable
+        self.ik_limited_last = limited
+        self.ik_limited_ticks += limited
+        # joint_targets: a new array every tick (the IK's), never written afterwards
+        command = Command(t, gait.phase(gait.clock(gait_time)), gait.state.swinging.copy(), feet, self.joint_targets,
+                          np.array([twist.vx, twist.vy, twist.wz]))
         return command, estimates
 
     def _measured_feet(self) -> np.ndarray:
         """The feet where the encoders put them, in the gait frame (the body frame without the
         posture controller)."""
-        feet = self.encoder_feet
-        return feet if self.posture is None else self.posture.to_gait_frame(feet)
+        if self.posture is None:
+            return self.encoder_feet
+        return self.posture.to_gait_frame(self.encoder_feet) if self._gait_frame_stale else self._gait_frame_feet
 
     def _posture_measurement(self, attitude: tuple[float, float] | None) -> PostureMeasurement | None:
         estimate = self.latest_estimate
@@ -115,26 +148,24 @@ class Pilot:
 
     def _absorb(self, samples: list[Sample]) -> list:
         estimates = []
+        estimator, heading = self.estimator, self.heading
         for sample in samples:
-            if self.estimator is not None:
-                estimate = self.estimator.update(sample)
+            if estimator is not None:
+                estimate = estimator.update(sample)
                 if estimate is not None:
                     estimates.append(estimate)
                     self.latest_estimate = estimate
             if isinstance(sample, ImuSample):
-                self.heading.update(sample.t, sample.gyro)
+                heading.update(sample.t, sample.gyro)
             elif isinstance(sample, FootSample):
                 self.foot_contact = np.asarray(sample.contact, dtype=bool)
             elif isinstance(sample, EncoderSample):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
+                self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
-                self.odometry.update(np.asarray(sample.positions), stance, self.heading.yaw)
+                self.odometry.update(self.encoder_positions, stance, heading.yaw)
         return estimates
-
-    def _walking(self, t: float) -> bool:
-        """Walking gaits start after the start-up: the still robot and its calibration poses."""
-        return self.walking_gait and t >= self.startup_time
 
     def _twist(self, t: float) -> Twist:
         """The body twist at time t, once walking."""
@@ -153,16 +184,41 @@ class Pilot:
         correction = min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate)
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
 
-    def _solve_ik(self, feet: np.ndarray) -> None:
-        """Joint targets for the foot targets; a leg whose target is out of reach keeps its last
-        joint targets (the body gives way rather than the leg overreaching), and the tick counts."""
-        self.joint_targets, reachable = joint_targets_or_last(self.geometry, feet, self.joint_targets)
-        limited = not reachable
-        self.ik_limited_last = limited
-        self.ik_limited_ticks += limited
-
 
 def terrain_adaptation(config: Config) -> TerrainAdaptation:
     posture = config.posture
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
                              posture.walk_plane_time_constant)
+
+
+NO_LOOP_STATE = (0.0,) * 6     # (integral, output) of the roll, pitch and height loops
+NO_LOOP_GAINS = (1.0,) * 12    # (kp, ki, dt, limit) of each
+
+
+# Compiled: the posture loops, the posture correction, the start-up tilt, the inverse kinematics
+# and the encoders' feet in the gait frame were some ten Python and compiled calls a tick (each
+# compiled one ~1 us of dispatch and a boxed array, more in the run loop's cold caches).
+@njit(cache=True)
+def _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state, gains, tilt_roll, tilt_pitch,
+                             c0, s0, a01, a2, a3, lower, upper, last, encoder_feet, gait_frame_feet):
+    """With `posture`: the roll, pitch and height loops (PostureController.update: `state` their
+    (integral, output) pairs, `gains` their PiLoop.gains) updated with this measurement when
+    `update` (a NaN height error leaves that loop as it is), then the gait-frame foot targets
+    (6, 3) through their correction (PostureController.apply), and `encoder_feet` written in the
+    gait frame into `gait_frame_feet` (PostureController.to_gait_frame). Then the start-up pose
+    (CalibrationPoses.apply) and the joint angles, a leg out of reach keeping its `last` ones
+    (joint_targets_or_last). Returns (targets, joint angles, whether every leg reached its target,
+    the loops' new state)."""
+    if posture:
+        roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output = state
+        if update:
+            roll_integral, roll_output = pi_step(roll_integral, roll_output, roll, hold, *gains[0:4])
+            pitch_integral, pitch_output = pi_step(pitch_integral, pitch_output, pitch, hold, *gains[4:8])
+            height_integral, height_output = pi_step(height_integral, height_output, height_error, hold, *gains[8:12])
+        state = (roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output)
+        feet = tilted_targets(feet, roll_output, pitch_output, height_output)
+        untilted_positions(encoder_feet, roll_output, pitch_output, height_output, gait_frame_feet)
+    if not (tilt_roll == 0.0 and tilt_pitch == 0.0):
+        feet = tilted_targets(feet, tilt_roll, tilt_pitch, 0.0)
+    joints, reachable = solve_legs_or_last(feet, c0, s0, a01, a2, a3, lower, upper, KNEE_UP, last)
+    return feet, joints, reachable, state

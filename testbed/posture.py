@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 
 from testbed.config import PostureConfig
 from testbed.kinematics import LegGeometry, foot_positions, rows_times_matrix
@@ -43,17 +44,31 @@ class PiLoop:
         self.output = 0.0
 
     def update(self, error: float, hold: bool = False) -> float:
-        if not math.isfinite(error):
-            return self.output          # a missing or broken measurement: keep the last command
-        integral = self.integral + error * self.dt
-        raw = -(self.kp * error + self.ki * integral)
-        saturated = abs(raw) > self.limit and math.copysign(1.0, raw) == math.copysign(1.0, -error)
-        if not (hold or saturated):
-            self.integral = integral
-        else:
-            raw = -(self.kp * error + self.ki * self.integral)
-        self.output = min(max(raw, -self.limit), self.limit)
+        self.integral, self.output = pi_step(self.integral, self.output, error, hold, self.kp, self.ki, self.dt,
+                                             self.limit)
         return self.output
+
+    @property
+    def gains(self) -> tuple[float, float, float, float]:
+        """(kp, ki, dt, limit): pi_step's constants for this loop."""
+        return self.kp, self.ki, self.dt, self.limit
+
+
+# Plain Python from PiLoop.update; compiled into the pilot's per-tick kernel (one source for both).
+@register_jitable
+def pi_step(integral: float, output: float, error: float, hold: bool, kp: float, ki: float, dt: float,
+            limit: float) -> tuple[float, float]:
+    """PiLoop.update on the loop's state: the new (integral, output)."""
+    if not math.isfinite(error):
+        return integral, output          # a missing or broken measurement: keep the last command
+    updated = integral + error * dt
+    raw = -(kp * error + ki * updated)
+    saturated = abs(raw) > limit and math.copysign(1.0, raw) == math.copysign(1.0, -error)
+    if not (hold or saturated):
+        integral = updated
+    else:
+        raw = -(kp * error + ki * integral)
+    return integral, min(max(raw, -limit), limit)
 
 
 class PostureController:
@@ -84,7 +99,7 @@ class PostureController:
 
     def to_gait_frame(self, feet: np.ndarray) -> np.ndarray:
         """Body-frame positions (6, 3) -> gait frame: the inverse of `apply`."""
-        return _untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output)
+        return untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output, np.empty_like(feet))
 
 
 # Compiled, with the products in numpy's order (rows_times_matrix): each transform was a handful
@@ -110,11 +125,12 @@ def tilted_targets(feet: np.ndarray, roll: float, pitch: float, height: float) -
 
 
 @njit(cache=True)
-def _untilted_positions(feet, roll, pitch, height):
-    """The inverse of tilted_targets: rows R p + d, numpy's `p @ R.T + d`."""
-    positions = rows_times_matrix(feet, correction_rotation(roll, pitch).T, np.empty_like(feet))
-    positions[:, 2] += height
-    return positions
+def untilted_positions(feet, roll, pitch, height, out):
+    """The inverse of tilted_targets, written into `out` (another array than `feet`): rows
+    R p + d, numpy's `p @ R.T + d`."""
+    rows_times_matrix(feet, correction_rotation(roll, pitch).T, out)
+    out[:, 2] += height
+    return out
 
 
 def kinematic_height(geometry: LegGeometry, joints: np.ndarray, stance: np.ndarray, roll: float,
