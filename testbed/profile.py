@@ -33,8 +33,8 @@ from testbed.errors import UserError
 
 STAGES = ("physics", "contact", "sensors", "estimator", "controller", "recording", "metrics", "other")
 STAGE_NOTES = {
-    "physics": "DART step, servo commands, state and truth read-out",
-    "contact": "hard-finger contact forces (or DART contact read-out)",
+    "physics": "DART step, servo commands, state read-out (with the hard-finger forces)",
+    "contact": "contact forces applied to DART (or DART contact read-out)",
     "sensors": "IMU, encoders, foot force sensors",
     "estimator": "estimator updates, every sample",
     "controller": "pilot: odometry, gait, posture, inverse kinematics",
