@@ -239,7 +239,7 @@ def inverse_kinematics(geom: LegGeometry, leg: int, target: np.ndarray, elbow: E
     q = np.empty(3)
     status = _solve_leg(target[0], target[1], target[2], geom.base_cos[leg], geom.base_sin[leg],
                         geom.base_distance[leg], geom.femur, geom.tibia, geom.lower, geom.upper,
-                        _elbow_sign(elbow), q)
+                        elbow_sign(elbow), q)
     if status == REACHABLE:
         return q
     raise UnreachableTarget(leg, target, _unreachable_reason(geom, leg, target, q, status))
@@ -252,7 +252,7 @@ def inverse_kinematics_legs(geom: LegGeometry, targets: np.ndarray, fallback: np
     (18,), or NaN without one. The same angles, bit for bit, as `inverse_kinematics` leg by leg."""
     fallback = np.full(18, np.nan) if fallback is None else np.asarray(fallback, dtype=float)
     q, status = _solve_legs(np.asarray(targets, dtype=float), geom.base_cos, geom.base_sin, geom.base_distance,
-                            geom.femur, geom.tibia, geom.lower, geom.upper, _elbow_sign(elbow), fallback)
+                            geom.femur, geom.tibia, geom.lower, geom.upper, elbow_sign(elbow), fallback)
     return q, status == REACHABLE
 
 
@@ -262,7 +262,7 @@ def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarr
     of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
     the mask's `all`)."""
     return solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
-                              geom.lower, geom.upper, _elbow_sign("up"), last)
+                              geom.lower, geom.upper, elbow_sign("up"), last)
 
 
 def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
@@ -274,7 +274,7 @@ def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow 
     return q
 
 
-def _elbow_sign(elbow: Elbow) -> float:
+def elbow_sign(elbow: Elbow) -> float:
     return -1.0 if elbow == "up" else 1.0
 
 

@@ -14,7 +14,7 @@ from numba import njit
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.config import Config
 from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.kinematics import LegGeometry, _elbow_sign, foot_positions, solve_legs_or_last
+from testbed.kinematics import LegGeometry, elbow_sign, foot_positions, solve_legs_or_last
 from testbed.navigation import TargetWalker
 from testbed.odometry import GyroHeading, LegOdometry
 from testbed.posture import (PostureController, PostureMeasurement, estimated_height, kinematic_height, pi_step,
@@ -28,7 +28,7 @@ from testbed.startup import CalibrationPoses
 # at its scheduled touch-down the foot is e^-2 of a lag (0.7 mm tripod, 1.4 mm wave) from the ground.
 SWING_LEAD_TIME_CONSTANTS = 2.0
 STILL = Twist()
-KNEE_UP = _elbow_sign("up")
+KNEE_UP = elbow_sign("up")
 
 
 def make_estimator_or_none(name: str, config: Config):

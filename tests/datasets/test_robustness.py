@@ -152,7 +152,8 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
     assert run_rerun("mcap", "check", str(recorder.path)).returncode == 0
 
 
-KILLED_RUN = textwrap.dedent("""
+# A child process recording 1.7 s of synthetic ticks to sys.argv[1], flushing at 0.5, 1.0 and 1.5 s.
+RECORDING_RUN = textwrap.dedent("""
     import os, sys
     from datasets.recorder import McapRecorder
     from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
@@ -162,6 +163,8 @@ KILLED_RUN = textwrap.dedent("""
     recorder.start(config, urdf, terrain)
     for tick in generate_ticks(config, 1.7):
         recorder.record(tick)
+""")
+KILLED_RUN = RECORDING_RUN + textwrap.dedent("""
     if sys.argv[2] == "wait":
         recorder._dataset.wait()        # the writer thread has put the last flush's chunk on disk
     os.kill(os.getpid(), 9)
@@ -184,16 +187,7 @@ def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_
     assert replay(partial, "complementary").metrics["roll_rmse_deg"] is not None
 
 
-EXCEPTION_RUN = textwrap.dedent("""
-    import sys
-    from datasets.recorder import McapRecorder
-    from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
-    config = synthetic_config("complementary")
-    recorder = McapRecorder(sys.argv[1])
-    terrain, urdf = terrain_and_urdf(config)
-    recorder.start(config, urdf, terrain)
-    for tick in generate_ticks(config, 1.7):
-        recorder.record(tick)
+EXCEPTION_RUN = RECORDING_RUN + textwrap.dedent("""
     raise RuntimeError("the run loop failed")      # no finish: the writer thread still writes its chunk
 """)
 
