@@ -78,10 +78,11 @@ class Pilot:
         self.ik_limited_last = False
         # The posture loops (roll, pitch, height) run in the per-tick kernel on their state and gains.
         self._posture_loops = ()
-        self._posture_gains = NO_LOOP_GAINS
+        gains = NO_LOOP_GAINS
         if self.posture is not None:
             self._posture_loops = (self.posture.roll, self.posture.pitch, self.posture.height)
-            self._posture_gains = tuple(value for loop in self._posture_loops for value in loop.gains)
+            gains = tuple(value for loop in self._posture_loops for value in loop.gains)
+        self._tick_constants = tick_constants(gains, geometry)
 
     def tick(self, t: float, samples: list[Sample], attitude: tuple[float, float] | None = None) -> tuple[Command, list]:
         """One control tick. `attitude` (roll, pitch) replaces the estimator's in the posture
@@ -110,11 +111,9 @@ class Pilot:
             r, p, h = self._posture_loops
             state = (r.integral, r.output, p.integral, p.output, h.integral, h.output)
         tilt = self.startup.body_tilt(t) if t < startup_time else (0.0, 0.0)
-        g = self.geometry
         feet, self.joint_targets, reachable, state = _body_targets_and_joints(
-            feet, posture, update, roll, pitch, height_error, self.ik_limited_last, state, self._posture_gains, *tilt,
-            g.base_cos, g.base_sin, g.base_distance, g.femur, g.tibia, g.lower, g.upper, self.joint_targets,
-            self.encoder_feet, self._gait_frame_feet)
+            feet, posture, update, roll, pitch, height_error, self.ik_limited_last, state, self._tick_constants, *tilt,
+            self.joint_targets, self.encoder_feet, self._gait_frame_feet)
         if posture:
             r.integral, r.output, p.integral, p.output, h.integral, h.output = state
         self._gait_frame_stale = not posture
@@ -195,30 +194,41 @@ NO_LOOP_STATE = (0.0,) * 6     # (integral, output) of the roll, pitch and heigh
 NO_LOOP_GAINS = (1.0,) * 12    # (kp, ki, dt, limit) of each
 
 
+def tick_constants(gains: tuple[float, ...], geometry: LegGeometry) -> np.ndarray:
+    """The per-tick kernel's constant arguments in one array (numba unboxes each argument, a
+    tuple's items one by one): the posture loops' 12 gains, then the legs' base cosines, sines and
+    distances (6 each), femur, tibia, and the joints' lower and upper limits (3 each)."""
+    g = geometry
+    return np.concatenate([gains, g.base_cos, g.base_sin, g.base_distance, [g.femur, g.tibia], g.lower, g.upper])
+
+
 # Compiled: the posture loops, the posture correction, the start-up tilt, the inverse kinematics
 # and the encoders' feet in the gait frame were some ten Python and compiled calls a tick (each
 # compiled one ~1 us of dispatch and a boxed array, more in the run loop's cold caches).
 @njit(cache=True)
-def _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state, gains, tilt_roll, tilt_pitch,
-                             c0, s0, a01, a2, a3, lower, upper, last, encoder_feet, gait_frame_feet):
+def _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state, constants, tilt_roll,
+                             tilt_pitch, last, encoder_feet, gait_frame_feet):
     """With `posture`: the roll, pitch and height loops (PostureController.update: `state` their
-    (integral, output) pairs, `gains` their PiLoop.gains) updated with this measurement when
+    (integral, output) pairs, `constants` (tick_constants) their PiLoop.gains and the legs' geometry) updated with this measurement when
     `update` (a NaN height error leaves that loop as it is), then the gait-frame foot targets
     (6, 3) through their correction (PostureController.apply), and `encoder_feet` written in the
     gait frame into `gait_frame_feet` (PostureController.to_gait_frame). Then the start-up pose
     (CalibrationPoses.apply) and the joint angles, a leg out of reach keeping its `last` ones
     (joint_targets_or_last). Returns (targets, joint angles, whether every leg reached its target,
     the loops' new state)."""
+    g = constants
     if posture:
         roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output = state
         if update:
-            roll_integral, roll_output = pi_step(roll_integral, roll_output, roll, hold, *gains[0:4])
-            pitch_integral, pitch_output = pi_step(pitch_integral, pitch_output, pitch, hold, *gains[4:8])
-            height_integral, height_output = pi_step(height_integral, height_output, height_error, hold, *gains[8:12])
+            roll_integral, roll_output = pi_step(roll_integral, roll_output, roll, hold, g[0], g[1], g[2], g[3])
+            pitch_integral, pitch_output = pi_step(pitch_integral, pitch_output, pitch, hold, g[4], g[5], g[6], g[7])
+            height_integral, height_output = pi_step(height_integral, height_output, height_error, hold,
+                                                     g[8], g[9], g[10], g[11])
         state = (roll_integral, roll_output, pitch_integral, pitch_output, height_integral, height_output)
         feet = tilted_targets(feet, roll_output, pitch_output, height_output)
         untilted_positions(encoder_feet, roll_output, pitch_output, height_output, gait_frame_feet)
     if not (tilt_roll == 0.0 and tilt_pitch == 0.0):
         feet = tilted_targets(feet, tilt_roll, tilt_pitch, 0.0)
-    joints, reachable = solve_legs_or_last(feet, c0, s0, a01, a2, a3, lower, upper, KNEE_UP, last)
+    joints, reachable = solve_legs_or_last(feet, g[12:18], g[18:24], g[24:30], g[30], g[31], g[32:35], g[35:38],
+                                           KNEE_UP, last)
     return feet, joints, reachable, state

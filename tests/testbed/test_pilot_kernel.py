@@ -6,7 +6,7 @@ import numpy as np
 
 from testbed import config
 from testbed.kinematics import LegGeometry, joint_targets_or_last, nominal_stance
-from testbed.pilot import NO_LOOP_GAINS, NO_LOOP_STATE, _body_targets_and_joints
+from testbed.pilot import NO_LOOP_GAINS, NO_LOOP_STATE, _body_targets_and_joints, tick_constants
 from testbed.posture import PostureController, PostureMeasurement, tilted_targets
 
 CFG = config.load()
@@ -21,9 +21,8 @@ def kernel(feet, posture, update, measurement, hold, controller, tilt, last, enc
     loops = (controller.roll, controller.pitch, controller.height)
     state = tuple(value for loop in loops for value in (loop.integral, loop.output)) if posture else NO_LOOP_STATE
     gains = tuple(value for loop in loops for value in loop.gains) if posture else NO_LOOP_GAINS
-    return _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state, gains, *tilt,
-                                    GEOM.base_cos, GEOM.base_sin, GEOM.base_distance, GEOM.femur, GEOM.tibia,
-                                    GEOM.lower, GEOM.upper, last, encoder_feet, gait_frame_feet)
+    return _body_targets_and_joints(feet, posture, update, roll, pitch, height_error, hold, state,
+                                    tick_constants(gains, GEOM), *tilt, last, encoder_feet, gait_frame_feet)
 
 
 def test_the_tick_kernel_equals_the_posture_startup_and_ik_calls_bit_for_bit():
@@ -72,8 +71,8 @@ def test_without_posture_control_the_kernel_is_the_startup_pose_and_the_ik():
         tilt = tuple(rng.normal(0.0, 0.1, 2)) if k % 2 else (0.0, 0.0)
         untouched = np.full((6, 3), 7.0)
         targets, joints, reachable, state = _body_targets_and_joints(
-            feet, False, False, math.nan, math.nan, math.nan, False, NO_LOOP_STATE, NO_LOOP_GAINS, *tilt, GEOM.base_cos,
-            GEOM.base_sin, GEOM.base_distance, GEOM.femur, GEOM.tibia, GEOM.lower, GEOM.upper, last, feet, untouched)
+            feet, False, False, math.nan, math.nan, math.nan, False, NO_LOOP_STATE, tick_constants(NO_LOOP_GAINS, GEOM),
+            *tilt, last, feet, untouched)
         expected = tilted_targets(feet, *tilt, 0.0) if k % 2 else feet
         expected_joints, expected_reachable = joint_targets_or_last(GEOM, expected, last)
         assert targets.tobytes() == expected.tobytes() and joints.tobytes() == expected_joints.tobytes()
