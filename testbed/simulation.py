@@ -148,20 +148,27 @@ class Simulation:
         """What the state read-out kernel (`_read_out`) needs besides DART's coordinates, packed once;
         with the compliant contact, the kernel also computes the next step's contact forces."""
         geometry = self.geometry
-        self._read_out_parameters = np.concatenate([[self.dt, geometry.femur, geometry.tibia], geometry.base_angle,
-                                                    geometry.base_distance])
-        self._previous_velocities = np.zeros(6)     # the body's linear and angular velocity one step earlier
+        contact_parameters = self.compliant.parameters if self._compliant else np.zeros(CONTACT_PARAMETERS)
+        self._read_out_constants = np.concatenate([[self.dt, geometry.femur, geometry.tibia], geometry.base_angle,
+                                                   geometry.base_distance, contact_parameters])
+        # The kernel's state between steps and its outputs besides the frame, in one array (numba
+        # unboxes each argument): the body's velocities one step earlier, the sticking anchors of
+        # the compliant contact, and the forces the next step applies and their points in the
+        # tibias' frames.
+        state = np.zeros((STATE_ROWS, 3))
+        if self._compliant:
+            state[ANCHORS:ANCHORS + 6] = self.compliant.anchors
+            self.compliant.anchors = state[ANCHORS:ANCHORS + 6]
+        self._read_out_state = state
         boxes = self.terrain.boxes
         self._boxes = (boxes.centers, boxes.half_extents, boxes.rotations)
         # The terrain's candidate boxes found in the kernels, unless it has a rule of its own.
         self._candidate_rule = self.terrain.candidate_rule()
         self._rule, self._rule_data = self._candidate_rule or (NO_RULE, np.zeros(1))
         self._contact_mode = COMPLIANT_CONTACT if self._compliant and self._candidate_rule else NO_CONTACT
-        self._anchors = self.compliant.anchors if self._compliant else np.zeros((6, 3))
-        self._contact_parameters = self.compliant.parameters if self._compliant else np.zeros(7)
-        # The forces the next step applies and their points in the tibias' frames, written by the
-        # kernel; per set of touching feet (bits), the addExtForce calls that apply them.
-        self._applied_forces, self._applied_offsets = np.zeros((6, 3)), np.zeros((6, 3))
+        # Per set of touching feet (bits), the addExtForce calls that apply the kernel's forces.
+        self._applied_forces = state[APPLIED_FORCES:APPLIED_FORCES + 6]
+        self._applied_offsets = state[APPLIED_OFFSETS:APPLIED_OFFSETS + 6]
         self._applications = tuple(
             tuple((self.tibias[leg].addExtForce, self._applied_forces[leg], self._applied_offsets[leg])
                   for leg in range(6) if bits >> leg & 1) for bits in range(64))
@@ -222,10 +229,8 @@ class Simulation:
         step from them, all in one compiled call (`_read_out`)."""
         positions, velocities, com = self._get_positions(), self._get_velocities(), self._get_com()
         centers, halves, rotations = self._boxes
-        frame, bits, up = _read_out(positions, velocities, self._previous_velocities, self._read_out_parameters,
-                                    self._contact_mode, self._anchors, self._contact_parameters, centers, halves,
-                                    rotations, self._rule, self._rule_data, self._applied_forces,
-                                    self._applied_offsets)
+        frame, bits, up = _read_out(positions, velocities, self._read_out_constants, self._read_out_state,
+                                    self._contact_mode, centers, halves, rotations, self._rule, self._rule_data)
         if bits < 0:
             raise SimulationDiverged(f"simulation state became non-finite at t = {self.time:.3f} s")
         self._frame, self._up = frame, up
@@ -249,9 +254,8 @@ class Simulation:
         feet the kernel read out, then the same model in a second compiled call."""
         candidates = np.ascontiguousarray(self.terrain.candidates(frame[CENTERS:CENTERS + 6]), dtype=np.int64)
         centers, halves, rotations = self._boxes
-        return _contact_of_frame(frame, positions, velocities, self._read_out_parameters, self.compliant.anchors,
-                                 self.compliant.parameters, centers, halves, rotations, candidates,
-                                 self._applied_forces, self._applied_offsets)
+        return _contact_of_frame(frame, positions, velocities, self._read_out_constants, self._read_out_state, centers,
+                                 halves, rotations, candidates)
 
     def _apply_compliant_contact(self) -> None:
         """The forces the kernel computed from the latest state, on the tibias whose feet touch."""
@@ -363,6 +367,10 @@ NORMAL_FORCES, QUATERNION = 3 * 32, 3 * 34      # flat indices
 FRAME_ROWS = 36
 NO_CONTACT, COMPLIANT_CONTACT = 0, 1     # what the state read-out computes besides the state
 NO_RULE = -1                            # a terrain's candidate boxes found in Python (Terrain.candidate_rule)
+# Rows of the read-out's state array (`Simulation._read_out_state`), (STATE_ROWS, 3)
+PREVIOUS_LINEAR, PREVIOUS_ANGULAR, ANCHORS, APPLIED_FORCES, APPLIED_OFFSETS = 0, 1, 2, 8, 14
+STATE_ROWS = 20
+CONTACT_PARAMETERS = 7                  # at the end of the read-out's constants: CompliantContact.parameters
 
 
 def _contact_flags() -> tuple[np.ndarray, ...]:
@@ -384,16 +392,17 @@ IN_CONTACT = _contact_flags()
 # compliant contact of the next step is computed in the same call: it depends only on this state,
 # and a second compiled call, with its arguments and its six returned arrays, cost ~5 us a step.
 @njit(cache=True)
-def _read_out(positions, velocities, previous, parameters, contact_mode, anchors, contact_parameters, box_centers,
-              box_halves, box_rotations, rule, rule_data, applied_forces, applied_offsets):
+def _read_out(positions, velocities, constants, state, contact_mode, box_centers, box_halves, box_rotations, rule,
+              rule_data):
     """The (FRAME_ROWS, 3) frame of the state (its rows: above): world_from_body, the body's
-    world-frame velocities and their finite differences over the step (`previous`, (6,), holds the
-    linear and angular velocity one step earlier and is updated in place), the quaternion, the foot
-    centres by eq. 2; with COMPLIANT_CONTACT also the hard-finger contact of the next step
-    (`_contact_into`, on the boxes the terrain's candidate `rule` finds). Then the touching feet as
-    bits (leg i: 1 << i), -1 if a coordinate or rate is not finite; and world_from_body[2, 2].
-    `parameters`: dt, a2, a3, then the six base angles and the six base distances."""
-    dt, a2, a3, base_angle, base_distance = parameters[0], parameters[1], parameters[2], parameters[3:9], parameters[9:15]
+    world-frame velocities and their finite differences over the step (the `state` rows
+    PREVIOUS_LINEAR and PREVIOUS_ANGULAR hold the velocities one step earlier and are updated in
+    place), the quaternion, the foot centres by eq. 2; with COMPLIANT_CONTACT also the hard-finger
+    contact of the next step (`_contact_into`, on the boxes the terrain's candidate `rule` finds).
+    Then the touching feet as bits (leg i: 1 << i), -1 if a coordinate or rate is not finite; and
+    world_from_body[2, 2]. `constants`: dt, a2, a3, the six base angles, the six base distances,
+    then the contact's parameters."""
+    dt, a2, a3, base_angle, base_distance = constants[0], constants[1], constants[2], constants[3:9], constants[9:15]
     frame = np.zeros((FRAME_ROWS, 3))
     transform = free_joint_transform(positions)
     rotation = transform[:3, :3]
@@ -405,12 +414,12 @@ def _read_out(positions, velocities, previous, parameters, contact_mode, anchors
     # Finite differences of the body velocity over the step: DART's own accelerations miss the
     # servo and contact constraint impulses, which are part of what an accelerometer feels.
     for i in range(3):
-        frame[LINEAR_RATE, i] = (linear[i] - previous[i]) / dt
-        frame[ANGULAR_RATE, i] = (angular[i] - previous[3 + i]) / dt
+        frame[LINEAR_RATE, i] = (linear[i] - state[PREVIOUS_LINEAR, i]) / dt
+        frame[ANGULAR_RATE, i] = (angular[i] - state[PREVIOUS_ANGULAR, i]) / dt
         frame[LINEAR, i], frame[ANGULAR, i], frame[POSITION, i] = linear[i], angular[i], transform[i, 3]
         for j in range(3):
             frame[i, j] = rotation[i, j]
-    previous[0:3], previous[3:6] = linear, angular
+    state[PREVIOUS_LINEAR], state[PREVIOUS_ANGULAR] = linear, angular
     flat = frame.reshape(-1)
     flat[QUATERNION:QUATERNION + 4] = rotation_to_quaternion(rotation)
     if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
@@ -421,41 +430,41 @@ def _read_out(positions, velocities, previous, parameters, contact_mode, anchors
     if contact_mode == NO_CONTACT:
         return frame, 0, rotation[2, 2]
     candidates = candidates_by_rule(centers, rule, rule_data)
-    bits = _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
-                         box_centers, box_halves, box_rotations, candidates, applied_forces, applied_offsets)
+    bits = _contact_into(frame, centers, feet_velocities, spins, rotations, origins, constants, state, box_centers,
+                         box_halves, box_rotations, candidates)
     return frame, bits, rotation[2, 2]
 
 
 @njit(cache=True)
-def _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters, box_centers,
-                  box_halves, box_rotations, candidates, applied_forces, applied_offsets):
-    """The hard-finger contact (contact.hard_finger_into, `anchors` updated in place) into the frame's
-    contact rows; the forces of the touching feet and their points in the tibias' frames into
-    `applied_forces` and `applied_offsets`. Returns the touching feet as bits."""
+def _contact_into(frame, centers, feet_velocities, spins, rotations, origins, constants, state, box_centers,
+                  box_halves, box_rotations, candidates):
+    """The hard-finger contact (contact.hard_finger_into, the parameters at the end of the read-out's
+    `constants`, the `state`'s anchors updated in place) into the frame's contact rows; the forces
+    of the touching feet and their points in the tibias' frames into the `state`'s APPLIED_FORCES
+    and APPLIED_OFFSETS rows. Returns the touching feet as bits."""
     local_points = np.empty((6, 3))
-    bits = hard_finger_into(centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
-                            box_centers, box_halves, box_rotations, candidates, frame[FORCES:FORCES + 6],
-                            frame.reshape(-1)[NORMAL_FORCES:NORMAL_FORCES + 6], frame[NORMALS:NORMALS + 6],
-                            frame[POINTS:POINTS + 6], local_points)
+    bits = hard_finger_into(centers, feet_velocities, spins, rotations, origins, state[ANCHORS:ANCHORS + 6],
+                            constants[len(constants) - CONTACT_PARAMETERS:], box_centers, box_halves, box_rotations,
+                            candidates, frame[FORCES:FORCES + 6], frame.reshape(-1)[NORMAL_FORCES:NORMAL_FORCES + 6],
+                            frame[NORMALS:NORMALS + 6], frame[POINTS:POINTS + 6], local_points)
     for leg in range(6):
         if (bits >> leg) & 1:
             for i in range(3):
-                applied_forces[leg, i] = frame[FORCES + leg, i]
-                applied_offsets[leg, i] = local_points[leg, i]
+                state[APPLIED_FORCES + leg, i] = frame[FORCES + leg, i]
+                state[APPLIED_OFFSETS + leg, i] = local_points[leg, i]
     return bits
 
 
 @njit(cache=True)
-def _contact_of_frame(frame, positions, velocities, parameters, anchors, contact_parameters, box_centers, box_halves,
-                      box_rotations, candidates, applied_forces, applied_offsets):
+def _contact_of_frame(frame, positions, velocities, constants, state, box_centers, box_halves, box_rotations, candidates):
     """`_read_out`'s contact with candidate boxes found after it: the feet's motion again from the
     frame's pose and velocities (the same numbers, so the same feet), then the same model."""
-    a2, a3, base_angle, base_distance = parameters[1], parameters[2], parameters[3:9], parameters[9:15]
+    a2, a3, base_angle, base_distance = constants[1], constants[2], constants[3:9], constants[9:15]
     centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
         frame[0:3], frame[POSITION], frame[ANGULAR], frame[LINEAR], positions[6:], velocities[6:], base_angle,
         base_distance, a2, a3)
-    return _contact_into(frame, centers, feet_velocities, spins, rotations, origins, anchors, contact_parameters,
-                         box_centers, box_halves, box_rotations, candidates, applied_forces, applied_offsets)
+    return _contact_into(frame, centers, feet_velocities, spins, rotations, origins, constants, state, box_centers,
+                         box_halves, box_rotations, candidates)
 
 
 @njit(cache=True)
