@@ -122,6 +122,11 @@ class GaitGenerator:
         self.state = GaitState(self.neutral.copy(), np.zeros(6, bool), self.neutral.copy())
         self.stopping = False
         self._stepped_phase = (math.nan, np.zeros(6))     # (gait time, phase) of the last step
+        if adaptation is not None:
+            # The adaptive step's constant scalars in one array (numba unboxes each argument).
+            self._adaptive_constants = np.array([
+                period, self.duty, lead, self.stance_time, swing_height, self.neutral_height, adaptation.search_speed,
+                adaptation.search_depth, adaptation.touchdown_phase, adaptation.plane_time_constant])
 
     @property
     def stance_time(self) -> float:
@@ -169,11 +174,9 @@ class GaitGenerator:
         gait_time = self.clock(t)
         searched, plane_shift = _adaptive_step(
             gait_time, dt, command.vx, command.vy, command.wz, np.asarray(contact, dtype=bool),
-            measured if has_measured else state.feet, has_measured, self.stopping,
-            self.period, self.swing_start, self.duty, self.lead, self.stance_time, self.swing_height,
-            self.neutral, self.neutral_height, adaptation.search_speed, adaptation.search_depth,
-            adaptation.touchdown_phase, adaptation.plane_time_constant, adaptation.follows_terrain,
-            phase, state.feet, state.swinging, state.liftoff, self.scheduled, self.search_floor, self.searching)
+            measured if has_measured else state.feet, has_measured, self.stopping, self._adaptive_constants,
+            self.swing_start, self.neutral, phase, state.feet, state.swinging, state.liftoff, self.scheduled,
+            self.search_floor, self.searching)
         self._stepped_phase = (gait_time, phase)
         if searched:
             self.waited += dt           # the clock waits: no leg lifts, the body does not move
@@ -278,13 +281,16 @@ def _blind_step(t, dt, vx, vy, wz, walking, stopping, period, swing_start, duty,
 
 
 @njit(cache=True)
-def _adaptive_step(t, dt, vx, vy, wz, contact, measured, has_measured, stopping,
-                   period, swing_start, duty, lead, stance_time, swing_height, neutral, neutral_height,
-                   search_speed, search_depth, touchdown_phase, plane_time_constant, follows_terrain,
+def _adaptive_step(t, dt, vx, vy, wz, contact, measured, has_measured, stopping, constants, swing_start, neutral,
                    phase, feet, swinging, liftoff, scheduled, search_floor, searching):
     """The gait with touch-down confirmation and terrain adaptation, at gait time t (`phase`
-    receives the legs' phases). Returns (whether feet searched the ground, so that the clock
-    waited; the gait frame's vertical shift)."""
+    receives the legs' phases). `constants`: period, duty, lead, stance time, swing height,
+    neutral height, then the adaptation's search speed, search depth, touch-down phase and walk
+    plane time constant. Returns (whether feet searched the ground, so that the clock waited; the
+    gait frame's vertical shift)."""
+    period, duty, lead, stance_time, swing_height, neutral_height = constants[0:6]
+    search_speed, search_depth, touchdown_phase, plane_time_constant = constants[6:10]
+    follows_terrain = math.isfinite(plane_time_constant)
     _phase(t, period, swing_start, duty, phase)
     now = phase >= duty
     if stopping:
