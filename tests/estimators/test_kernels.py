@@ -38,7 +38,7 @@ def test_foot_gate_nis_matches_a_linear_solve():
 
 @njit
 def _compiled_products(a, b, v):
-    return a @ b, a.T @ b, a.T @ v
+    return (a @ b, a.T @ b, a @ b.T, a.T @ b.T), a.T @ v
 
 
 def _awkward_values(rng, shape):
@@ -54,11 +54,10 @@ def test_3x3_products_equal_numpy_and_numba_bit_for_bit():
     rng = np.random.default_rng(2)
     for _ in range(20000):
         a, b, v = _awkward_values(rng, (3, 3)), _awkward_values(rng, (3, 3)), _awkward_values(rng, 3)
-        numba_product, numba_transposed, numba_vector = _compiled_products(a, b, v)
-        for expected in (a @ b, numba_product):
-            assert product3(a, b).tobytes() == expected.tobytes()
-        for expected in (a.T @ b, numba_transposed):
-            assert product3(a.T, b).tobytes() == expected.tobytes()
+        numba_products, numba_vector = _compiled_products(a, b, v)
+        for left, right, numba_product in zip((a, a.T, a, a.T), (b, b, b.T, b.T), numba_products):
+            for expected in (left @ right, numba_product):
+                assert product3(left, right).tobytes() == expected.tobytes()
         for expected in (a.T @ v, numba_vector):
             assert transposed_product3(a.T, v).tobytes() == expected.tobytes()
 
