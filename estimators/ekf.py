@@ -22,7 +22,7 @@ from estimators import rotations as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_arrays,
                                inject_in_place)
-from estimators.linalg import inverse3, skew
+from estimators.linalg import inverse3, product3, skew, transposed_product3
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
                                        current_attitude, quaternion_matrix, skew3)
 from testbed.config import Config
@@ -42,9 +42,9 @@ def predict(buffer: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.nd
     up = np.array([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)])
     D = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19]).T
     shift = velocity * dt - 0.5 * gravity * dt * dt * up + buffer[DP]
-    velocity[:] = D @ (velocity - gravity * dt * up + buffer[DV])
+    velocity[:] = transposed_product3(D, velocity - gravity * dt * up + buffer[DV])
     for leg in range(feet.shape[0]):
-        feet[leg] = D @ (feet[leg] - shift)
+        feet[leg] = transposed_product3(D, feet[leg] - shift)
     _fill_transition(F, D, buffer[JACOBIANS].reshape(5, 3, 3), up, velocity, feet, gravity, dt)
     P[:] = F @ P @ F.T
     _symmetrise(P)        # against rounding
@@ -58,21 +58,21 @@ def _fill_transition(F: np.ndarray, D: np.ndarray, J: np.ndarray, up: np.ndarray
                      feet: np.ndarray, gravity: float, dt: float) -> None:
     """The non-identity blocks of the error-state transition (module docstring), in place.
     `velocity` and `feet` are the nominal values after the interval."""
-    DU = D @ skew3(up[0], up[1], up[2])
+    DU = product3(D, skew3(up[0], up[1], up[2]))
     JR = J[J_R]
     F[0:3, 0:3] = D
     F[0:3, 3:6] = JR
     F[6:9, 0:3] = -gravity * dt * DU
-    F[6:9, 3:6] = D @ J[J_V_G] + skew3(velocity[0], velocity[1], velocity[2]) @ JR
+    F[6:9, 3:6] = product3(D, J[J_V_G]) + product3(skew3(velocity[0], velocity[1], velocity[2]), JR)
     F[6:9, 6:9] = D
-    F[6:9, 9:12] = D @ J[J_V_A]
+    F[6:9, 9:12] = product3(D, J[J_V_A])
     foot_theta = 0.5 * gravity * dt * dt * DU
-    foot_bias = -(D @ J[J_P_G])
-    foot_accel_bias = -(D @ J[J_P_A])
+    foot_bias = -product3(D, J[J_P_G])
+    foot_accel_bias = -product3(D, J[J_P_A])
     for leg in range(feet.shape[0]):
         r = FOOT0 + 3 * leg
         F[r:r + 3, 0:3] = foot_theta
-        F[r:r + 3, 3:6] = foot_bias + skew3(feet[leg, 0], feet[leg, 1], feet[leg, 2]) @ JR
+        F[r:r + 3, 3:6] = foot_bias + product3(skew3(feet[leg, 0], feet[leg, 1], feet[leg, 2]), JR)
         F[r:r + 3, 6:9] = -dt * D
         F[r:r + 3, 9:12] = foot_accel_bias
         F[r:r + 3, r:r + 3] = D

@@ -48,7 +48,7 @@ from estimators import rotations as rot
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.leg_odometry import StanceTracker
-from estimators.linalg import cross, skew
+from estimators.linalg import cross, product3, skew
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, DT, DV, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
@@ -515,6 +515,6 @@ def output_covariances(P: np.ndarray, bias: np.ndarray, roll: float, pitch: floa
     output's arrays, new, from the error covariance P and the terrain's covariance at its last
     update, grown over `elapsed`."""
     euler = rot.euler_jacobian(roll, pitch)
-    attitude_cov = euler @ np.ascontiguousarray(P[0:3, 0:3]) @ euler.T
+    attitude_cov = product3(product3(euler, P[0:3, 0:3]), euler.T)
     return (attitude_cov, bias.copy(), np.ascontiguousarray(P[3:6, 3:6]),
             grown_covariance(terrain_cov, terrain_growth, elapsed, attitude_cov[:2, :2]))

@@ -4,6 +4,9 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
+
+from testbed.kinematics import fused_multiply_add
 
 
 def skew(v) -> np.ndarray:
@@ -24,6 +27,35 @@ def inverse3(matrix: np.ndarray) -> np.ndarray:
                  d * h - e * g, b * g - a * h, a * e - b * d)
     determinant = a * cofactors[0] + b * cofactors[3] + c * cofactors[6]
     return np.array(cofactors).reshape(3, 3) / determinant
+
+
+# Compiled code's `@` on 3x3 operands is a BLAS call of about 0.4 us. The OpenBLAS kernel numpy and
+# numba run on this CPU sums each element of such a product as an FMA chain over k from zero, which
+# these reproduce bit for bit (test_3x3_products_equal_numpy_and_numba_bit_for_bit checks it: a
+# different BLAS kernel would change the filters' last bits, not their results' meaning).
+@njit(cache=True)
+def product3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b for 3x3 matrices (a new array), as `@` computes it (compiled code only)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            total = fused_multiply_add(a[i, 0], b[0, j], 0.0)
+            total = fused_multiply_add(a[i, 1], b[1, j], total)
+            out[i, j] = fused_multiply_add(a[i, 2], b[2, j], total)
+    return out
+
+
+@njit(cache=True)
+def transposed_product3(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """a @ v for a transposed 3x3 matrix `a` (Fortran order, as `m.T`) and a 3-vector (a new
+    array), as `@` computes it (compiled code only). OpenBLAS sums a C-order matrix's rows in
+    another order: not for those."""
+    out = np.empty(3)
+    for i in range(3):
+        total = fused_multiply_add(a[i, 0], v[0], 0.0)
+        total = fused_multiply_add(a[i, 1], v[1], total)
+        out[i] = fused_multiply_add(a[i, 2], v[2], total)
+    return out
 
 
 # [v]x = [[0, -z, y], [z, 0, -x], [-y, x, 0]]: positions, sources and signs of its six entries.

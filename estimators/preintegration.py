@@ -22,6 +22,8 @@ import math
 import numpy as np
 from numba import njit
 
+from estimators.linalg import product3
+
 # Buffer fields.
 Q0, GYRO_BIAS, ACCEL_BIAS = slice(0, 4), slice(4, 7), slice(7, 10)     # nominal state at the last step
 LAST_GYRO, LAST_ACCEL = slice(10, 13), slice(13, 16)                     # previous sample (body frame)
@@ -86,7 +88,7 @@ def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
     J = buffer[JACOBIANS].reshape(5, 3, 3)
     R = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19])
     rotated = R @ accel
-    accel_turn = R @ skew3(accel[0], accel[1], accel[2]) @ J[J_R]     # R [a]x J_R
+    accel_turn = product3(product3(R, skew3(accel[0], accel[1], accel[2])), J[J_R])     # R [a]x J_R
     half_dt2 = 0.5 * dt * dt
     for i in range(3):
         for j in range(3):
@@ -101,7 +103,7 @@ def _preintegrate(buffer: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
     rx, ry, rz = rate[0] * dt, rate[1] * dt, rate[2] * dt
     sx, sy, sz, sw = step_quaternion(rx, ry, rz)
     # J_R <- Exp(w dt)^T J_R - Jr(w dt) dt, with Jr(phi) = I - [phi]x / 2 to first order.
-    turned = quaternion_matrix(sx, sy, sz, sw).T @ J[J_R]
+    turned = product3(quaternion_matrix(sx, sy, sz, sw).T, J[J_R])
     step_skew = skew3(rx, ry, rz)
     for i in range(3):
         for j in range(3):

@@ -20,7 +20,7 @@ from scipy.stats import chi2
 
 from estimators import rotations as rot
 from estimators.config import TerrainEstimatorConfig
-from estimators.linalg import inverse3
+from estimators.linalg import inverse3, product3
 
 MIN_FOOT_SPREAD = 0.03    # m: feet this close to a line (one side's three feet) define no reliable plane
 YAW_TOLERANCE = 1e-3      # rad: heading change that refreshes the reported terrain angles
@@ -102,7 +102,7 @@ def plane_measurement(points: np.ndarray, position_std: float, foot_radius: floa
     a, b, c = coefficients[0], coefficients[1], coefficients[2]
     s = math.sqrt(1.0 + a * a + b * b)
     jacobian = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [c * a / s**3, c * b / s**3, -1.0 / s]])
-    return True, np.array([a, b, -c / s + foot_radius]), jacobian @ covariance @ jacobian.T
+    return True, np.array([a, b, -c / s + foot_radius]), product3(product3(jacobian, covariance), jacobian.T)
 
 
 @njit(cache=True)
@@ -138,9 +138,9 @@ def _kalman_update(x: np.ndarray, P: np.ndarray, q: np.ndarray, elapsed: float, 
         x[:] = z
         P[:] = R
         return True
-    gain = prior @ S_inverse
+    gain = product3(prior, S_inverse)
     x += gain @ innovation
-    posterior = prior - gain @ prior
+    posterior = prior - product3(gain, prior)
     P[:] = 0.5 * (posterior + posterior.T)
     return False
 
@@ -251,4 +251,5 @@ def _heading_output(x: np.ndarray, P: np.ndarray, q: np.ndarray, yaw: float) -> 
     jacobian = np.zeros((3, 3))
     jacobian[:2, :2] = d_angles
     jacobian[2, 2] = 1.0
-    return roll, pitch, x[2], jacobian @ P @ jacobian.T, jacobian @ np.diag(q) @ jacobian.T
+    return (roll, pitch, x[2], product3(product3(jacobian, P), jacobian.T),
+            product3(product3(jacobian, np.diag(q)), jacobian.T))

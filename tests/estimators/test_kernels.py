@@ -4,6 +4,7 @@ import pickle
 from unittest import mock
 
 import numpy as np
+from numba import njit
 
 from estimators import rotations as rot
 from estimators.base import Estimator
@@ -11,6 +12,7 @@ from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FOOT0, _foot_nis
 from estimators.fusion import output_covariances
 from estimators.leg_odometry import StanceTracker
+from estimators.linalg import product3, transposed_product3
 from estimators.registry import make_estimator
 from estimators.terrain import TerrainFilter, plane_measurement
 from sensors.samples import ImuSample
@@ -32,6 +34,32 @@ def test_foot_gate_nis_matches_a_linear_solve():
         b = FOOT0 + 3 * leg
         expected = y @ np.linalg.solve(P[b:b + 3, b:b + 3] + variance * np.eye(3), y)
         assert abs(_foot_nis(P, b, variance, y) - expected) <= 1e-12 * expected
+
+
+@njit
+def _compiled_products(a, b, v):
+    return (a @ b, a.T @ b, a @ b.T, a.T @ b.T), a.T @ v
+
+
+def _awkward_values(rng, shape):
+    """Magnitudes over 13 decades, with zeros of both signs."""
+    values = rng.normal(size=shape) * 10.0 ** rng.integers(-10, 3, shape)
+    draw = rng.random(shape)
+    values[draw < 0.15] = 0.0
+    values[(draw >= 0.15) & (draw < 0.25)] = -0.0
+    return values
+
+
+def test_3x3_products_equal_numpy_and_numba_bit_for_bit():
+    rng = np.random.default_rng(2)
+    for _ in range(20000):
+        a, b, v = _awkward_values(rng, (3, 3)), _awkward_values(rng, (3, 3)), _awkward_values(rng, 3)
+        numba_products, numba_vector = _compiled_products(a, b, v)
+        for left, right, numba_product in zip((a, a.T, a, a.T), (b, b, b.T, b.T), numba_products):
+            for expected in (left @ right, numba_product):
+                assert product3(left, right).tobytes() == expected.tobytes()
+        for expected in (a.T @ v, numba_vector):
+            assert transposed_product3(a.T, v).tobytes() == expected.tobytes()
 
 
 def test_output_covariances_equal_the_numpy_products_bit_for_bit():
