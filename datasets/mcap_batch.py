@@ -98,13 +98,7 @@ class BatchWriter(Writer):
             return
         if channels.min() < 1 or channels.max() > 0xFFFF or log_times.min() < 0:
             raise ValueError("channel ids are 16-bit and non-zero, log times unsigned")
-        statistics = self._Writer__statistics
-        first, last = int(log_times.min()), int(log_times.max())
-        if statistics.message_count:
-            first = min(first, statistics.message_start_time)
-        statistics.message_start_time = first
-        statistics.message_end_time = max(last, statistics.message_end_time)
-        statistics.message_count += count
+        statistics = self._count_times(int(log_times.min()), int(log_times.max()), count)
         builder, limit = self._Writer__chunk_builder, self._chunk_size_limit
         counts = statistics.channel_message_counts      # its order is the file's: that of first appearance
         start = 0
@@ -114,16 +108,20 @@ class BatchWriter(Writer):
                 self._Writer__finalize_chunk()
 
     def _count(self, messages: list[tuple[int, int, bytes, int]]) -> None:
-        statistics = self._Writer__statistics
         log_times = list(map(itemgetter(1), messages))
-        first, last = min(log_times), max(log_times)
+        statistics = self._count_times(min(log_times), max(log_times), len(messages))
+        for channel, count in Counter(map(itemgetter(0), messages)).items():
+            statistics.channel_message_counts[channel] += count
+
+    def _count_times(self, first: int, last: int, count: int):
+        """Add `count` messages logged from `first` to `last` to the statistics; returns them."""
+        statistics = self._Writer__statistics
         if statistics.message_count:
             first = min(first, statistics.message_start_time)
         statistics.message_start_time = first
         statistics.message_end_time = max(last, statistics.message_end_time)
-        statistics.message_count += len(messages)
-        for channel, count in Counter(map(itemgetter(0), messages)).items():
-            statistics.channel_message_counts[channel] += count
+        statistics.message_count += count
+        return statistics
 
     # --- chunks and the file ------------------------------------------------------------------
 

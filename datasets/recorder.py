@@ -189,7 +189,7 @@ class McapRecorder:
                               tick.samples, tick.estimates, None if ticks % self._every else tick))
         self._ticks = ticks + 1
         self._last_t = t
-        t_ns = round(t * codec.NS_PER_S)        # codec.to_ns
+        t_ns = codec.to_ns(t)
         if t_ns >= self._next_flush_ns:
             self._write_pending(flush=True)
             self._next_flush_ns = t_ns + codec.to_ns(self.flush_period)
@@ -279,9 +279,6 @@ class McapRecorder:
                    (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
 
 
-_SAMPLES = 5         # a step's samples: _Step.samples
-
-
 class _Step(NamedTuple):
     """What the messages of every tick need, kept until the next write in place of the tick, which
     is kept only every `truth_every` ticks, for its heavy truth: the other ticks' objects are freed
@@ -294,6 +291,9 @@ class _Step(NamedTuple):
     samples: list
     estimates: list
     tick: Tick | None
+
+
+_SAMPLES = _Step._fields.index("samples")     # where a pending step (a plain tuple) holds its samples
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

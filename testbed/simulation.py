@@ -18,7 +18,7 @@ from testbed.errors import SimulationDiverged
 from testbed.kinematics import (LegGeometry, inverse_kinematics_all, nominal_stance, rows_times_matrix,
                                 world_feet_arrays)
 from testbed.robot import LEG_NAMES, build_urdf, foot_offset, joint_names
-from testbed.terrain import Terrain, _box_distance, candidates_by_rule, distances_to_boxes
+from testbed.terrain import Terrain, candidates_by_rule, closest_distance, distances_to_boxes
 from testbed.truth import Truth
 
 INITIAL_CLEARANCE = 0.001   # m, feet start this far above the ground and settle onto it
@@ -477,12 +477,9 @@ def _corners_in_ground(corners, frame, box_centers, box_halves, box_rotations, r
         for i in range(3):
             world[row, i] += frame[POSITION, i]
     candidates = candidates_by_rule(world, rule, rule_data)
-    normal = np.empty(3)
     for row in range(len(world)):
-        for j in range(candidates.shape[1]):
-            box = candidates[row, j]
-            if _box_distance(world[row], box_centers[box], box_halves[box], box_rotations[box], normal) < 0.0:
-                return True
+        if closest_distance(world[row], box_centers, box_halves, box_rotations, candidates[row]) < 0.0:
+            return True
     return False
 
 
