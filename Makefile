@@ -25,7 +25,7 @@ test: $(STAMP)
 # in .cache/bench); docs/results.md is assembled from every benchmark's fragment at the end.
 bench: $(STAMP)
 	$(BIN)/python -m pytest -q -m bench tests/benchmarks; status=$$?; \
-		$(BIN)/python -m testbed.bench_report; exit $$status
+		$(BIN)/python -m testbed.tools.bench_report; exit $$status
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -23,9 +23,9 @@ from scipy.spatial.transform import Rotation
 from datasets import schemas, wire
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
-from testbed.contact import FootContacts
-from testbed.recording import Command
-from testbed.truth import Truth
+from testbed.world.contact import FootContacts
+from testbed.control.command import Command
+from testbed.model.truth import Truth
 
 WORLD_FRAME = "world"
 BODY_FRAME = "body"         # the URDF's root link

@@ -19,8 +19,8 @@ from typing import Any
 
 from datasets.reader import read_description
 from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
-from testbed.config import Config
-from testbed.errors import UserError
+from testbed.runtime.config import Config
+from testbed.model.errors import UserError
 
 EXIT_OK = 0
 RUNS_FOLDER = Path("runs")
@@ -38,7 +38,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_mcap(path: str | Path) -> dict[str, Any]:
-    """The resolved config recorded in a run's file, as a plain dict (`testbed.config.from_dict`)."""
+    """The resolved config recorded in a run's file, as a plain dict (`testbed.runtime.config.from_dict`)."""
     return read_description(path).config_dict()
 
 
@@ -102,7 +102,7 @@ def add_subcommands(subparsers) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from datasets.replay import replay
-    from testbed.metrics import write_metrics
+    from testbed.runtime.metrics import write_metrics
 
     if args.metrics is not None:
         _check_output(args.metrics, "--metrics")

@@ -3,7 +3,7 @@
 The file is read front to back, record by record, so the same code reads a complete file and a
 truncated one (a run killed outright, a copy cut short): reading stops at the first record that
 is incomplete or fails its CRC, keeps everything before it and notes why (`Recording.truncated`).
-Bad input raises `testbed.errors.UserError` with a one-line message.
+Bad input raises `testbed.model.errors.UserError` with a one-line message.
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ from datasets import codec, schemas
 from datasets.scoring import ScoringTruth
 from estimators.base import Estimate
 from sensors.samples import Sample
-from testbed import config as config_module
-from testbed.config import Config
-from testbed.contact import FootContacts
-from testbed.errors import ConfigError, UserError
-from testbed.recording import Command
-from testbed.truth import Truth
+from testbed.runtime import config as config_module
+from testbed.runtime.config import Config
+from testbed.world.contact import FootContacts
+from testbed.model.errors import ConfigError, UserError
+from testbed.control.command import Command
+from testbed.model.truth import Truth
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 REPLAY_TOPICS = frozenset({*schemas.SENSOR_TOPICS, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})

@@ -41,11 +41,11 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from datasets import batch_encode, codec, schemas
 from datasets.mcap_batch import BatchWriter
 from datasets.signals import sigint_deferred
-from testbed.recording import Tick
+from testbed.runtime.recording import Tick
 
 if TYPE_CHECKING:
-    from testbed.config import Config
-    from testbed.terrain import Terrain
+    from testbed.runtime.config import Config
+    from testbed.world.terrain import Terrain
 
 TRUTH_RATE = 200.0          # Hz, heavy truth (state, contacts, support polygon) and commands
 PARTIAL_SUFFIX = ".partial"
@@ -142,7 +142,7 @@ class DatasetWriter:
 
 
 class McapRecorder:
-    """Implements `testbed.recording.Recorder`."""
+    """Implements `testbed.runtime.recording.Recorder`."""
 
     def __init__(self, path: str | Path, truth_rate: float = TRUTH_RATE, flush_period: float = FLUSH_PERIOD):
         self.path = Path(path)

@@ -18,7 +18,7 @@ from datasets.recorder import DatasetWriter
 from datasets.scoring import score_run
 from estimators.base import Estimate, run_estimator
 from estimators.registry import make_estimator
-from testbed.config import Config
+from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
 

@@ -1,6 +1,6 @@
 """Estimator metrics of a recording, through the function the live run scores with.
 
-A live run scores with `testbed.metrics.score_estimates` from the truth of every physics step
+A live run scores with `testbed.runtime.metrics.score_estimates` from the truth of every physics step
 (time, body quaternion and position, foot centres and contacts). The recorder writes exactly those
 numbers, losslessly, at every step (`/truth/pose` and `/truth/feet`), so a replay that calls the
 same function on them reproduces the live metrics bit for bit.
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.base import Estimate
-from testbed.config import Config
-from testbed.metrics import score_estimates
+from testbed.runtime.config import Config
+from testbed.runtime.metrics import score_estimates
 
 
 @dataclass(frozen=True)

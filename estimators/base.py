@@ -13,14 +13,11 @@ import abc
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
-
-if TYPE_CHECKING:
-    from testbed.config import Config
 
 
 @dataclass
@@ -52,18 +49,17 @@ class Estimate:
 
 
 class Estimator(abc.ABC):
-    """Base class: rotates IMU samples into the body frame and dispatches on the sample type.
+    """Base class of every estimator, built-in or a user's plugin.
 
-    imu_rotation is body_from_imu (3x3); the IMU's lever arm is left to the estimators that
-    model it (the fusion filters take `imu_position`).
+    A subclass implements `update(sample) -> Estimate | None` (sample: `ImuSample`,
+    `EncoderSample`, `FootSample` or `AccelSample`; samples of other types must be ignored) or,
+    like the built-ins, `_update_imu` and the optional `_update_encoders` / `_update_feet` hooks,
+    with IMU vectors already rotated into the body frame. A class method `from_config(config)`
+    receives the run's `Config` when present; otherwise the class is built with no arguments.
     """
 
-    name: ClassVar[str]
-
-    @classmethod
-    @abc.abstractmethod
-    def from_config(cls, config: "Config") -> "Estimator":
-        """The estimator with the run's tuning, robot geometry and sensor mounting."""
+    name: ClassVar[str] = ""
+    _body_from_imu: np.ndarray | None = None
 
     def __init__(self, imu_rotation: np.ndarray | None = None):
         rotation = np.eye(3) if imu_rotation is None else np.asarray(imu_rotation, dtype=float)
@@ -77,13 +73,9 @@ class Estimator(abc.ABC):
             return self._update_imu(sample.t, self._to_body(sample.gyro), self._to_body(sample.accel))
         if isinstance(sample, EncoderSample):
             self._update_encoders(sample)
-            return None
-        if isinstance(sample, FootSample):
+        elif isinstance(sample, FootSample):
             self._update_feet(sample)
-            return None
-        if isinstance(sample, AccelSample):
-            return None
-        raise TypeError(f"{type(self).__name__} cannot use a {type(sample).__name__}")
+        return None
 
     def _to_body(self, vector: np.ndarray) -> np.ndarray | None:
         """The IMU vector in the body frame, or None when it is not a finite 3-vector."""
@@ -93,9 +85,9 @@ class Estimator(abc.ABC):
             return None
         return vector if self._body_from_imu is None else self._body_from_imu @ vector
 
-    @abc.abstractmethod
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         """Body-frame gyro (rad/s) and specific force (m/s^2); None for an invalid reading."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither update nor _update_imu")
 
     def _update_encoders(self, sample: EncoderSample) -> None:
         """Attitude-only estimators ignore the legs."""
@@ -104,12 +96,12 @@ class Estimator(abc.ABC):
         """Attitude-only estimators ignore the legs."""
 
 
-def imu_rotation(config: "Config") -> np.ndarray:
+def imu_rotation(config) -> np.ndarray:
     """body_from_imu of the configured IMU mounting (sensor geometry is known; truth is not)."""
     return np.array(config.sensors.imu.body_from_sensor)
 
 
-def imu_position(config: "Config") -> np.ndarray:
+def imu_position(config) -> np.ndarray:
     """m, body frame: the IMU's accelerometer point."""
     return np.array(config.sensors.imu.position, dtype=float)
 

@@ -19,10 +19,9 @@ import numpy as np
 from ahrs.filters import Madgwick, Mahony
 from vqf import VQF
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator, imu_rotation
 from estimators.config import MadgwickConfig, MahonyConfig, VqfConfig
-from testbed.config import Config
 
 TINY_RATE = np.array([1e-12, 0.0, 0.0])    # rad/s, stands in for an exactly-zero gyro reading
 
@@ -83,7 +82,7 @@ class MadgwickEstimator(_AhrsEstimator):
         super().__init__(Madgwick(gain=params.gain), imu_rotation)
 
     @classmethod
-    def from_config(cls, config: Config) -> "MadgwickEstimator":
+    def from_config(cls, config) -> "MadgwickEstimator":
         return cls(config.estimators.madgwick, imu_rotation(config))
 
 
@@ -94,7 +93,7 @@ class MahonyEstimator(_AhrsEstimator):
         super().__init__(Mahony(k_P=params.k_p, k_I=params.k_i), imu_rotation)
 
     @classmethod
-    def from_config(cls, config: Config) -> "MahonyEstimator":
+    def from_config(cls, config) -> "MahonyEstimator":
         return cls(config.estimators.mahony, imu_rotation(config))
 
     def _estimate(self, t: float) -> Estimate:
@@ -112,7 +111,7 @@ class VqfEstimator(Estimator):
         self._first: tuple[float, np.ndarray, np.ndarray] | None = None
 
     @classmethod
-    def from_config(cls, config: Config) -> "VqfEstimator":
+    def from_config(cls, config) -> "VqfEstimator":
         return cls(config.estimators.vqf, imu_rotation(config))
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:

@@ -12,10 +12,9 @@ import math
 
 import numpy as np
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator, imu_rotation
 from estimators.config import ComplementaryConfig
-from testbed.config import Config
 
 
 class ComplementaryEstimator(Estimator):
@@ -29,7 +28,7 @@ class ComplementaryEstimator(Estimator):
         self._last_gyro = np.zeros(3)
 
     @classmethod
-    def from_config(cls, config: Config) -> "ComplementaryEstimator":
+    def from_config(cls, config) -> "ComplementaryEstimator":
         return cls(config.estimators.complementary, imu_rotation(config))
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:

@@ -3,7 +3,7 @@
 The values are the estimators' *beliefs* about the sensors and the motion (noise densities,
 process noise, gates), not the sensor models themselves. Units are SI (rad, m, s) unless a key
 ends in `_deg`. This module imports nothing from the rest of the testbed but its errors, so that
-`testbed.config` can import it without a cycle.
+`testbed.runtime.config` can import it without a cycle.
 """
 
 from __future__ import annotations
@@ -11,9 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from testbed.validation import non_negative, positive, require
+from testbed.model.validation import non_negative, positive, require
 
-ESTIMATOR_NAMES = ("ekf", "ukf", "complementary", "madgwick", "mahony", "vqf")    # estimators.registry
 ACCEL_BIAS_MODES = ("startup", "always", "never")     # FusionConfig.accel_bias_estimation
 
 

@@ -18,15 +18,14 @@ import math
 import numpy as np
 from numba import njit
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_arrays,
                                inject_in_place)
 from estimators.linalg import inverse3, product3, skew, transposed_product3
 from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
                                        current_attitude, quaternion_matrix, skew3)
-from testbed.config import Config
-from testbed.kinematics import LegGeometry
+from testbed.model.kinematics import LegGeometry
 
 I3 = np.eye(3)
 RESET_THRESHOLD = 1e-6    # rad: below it the reset changes P by under 1e-6 of itself: skipped
@@ -181,7 +180,7 @@ class EkfEstimator(FusionEstimator):
         self._tilt_cov = np.zeros((3, 3))
 
     @classmethod
-    def from_config(cls, config: Config) -> "EkfEstimator":
+    def from_config(cls, config) -> "EkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, LegGeometry.from_config(config.robot),
                    config.robot.foot_radius, config.run.gravity, imu_rotation(config), imu_position(config),
                    config.gait.startup_time)

@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.leg_odometry import StanceTracker
@@ -53,7 +53,7 @@ from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, DT, DV, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
-from testbed.kinematics import LegGeometry
+from testbed.model.kinematics import LegGeometry
 
 NUM_FEET = 6
 FOOT0 = 14                     # error-state index of the first foot

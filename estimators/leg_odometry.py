@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from testbed.kinematics import LegGeometry, world_feet_arrays
+from testbed.model.kinematics import LegGeometry, world_feet_arrays
 
 NUM_LEGS = 6
 _IDENTITY, _ORIGIN = np.eye(3), np.zeros(3)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.kinematics import fused_multiply_add
+from testbed.model.kinematics import fused_multiply_add
 
 
 def skew(v) -> np.ndarray:

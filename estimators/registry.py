@@ -1,26 +1,26 @@
-"""The estimators by name, and the one factory the run loop and replay call."""
+"""The estimators by spec (a registered name or MODULE:CLASS): the one factory the run loop,
+replay, bench and sweep call."""
 
 from __future__ import annotations
 
 from estimators.base import Estimator
-from estimators.baselines import MadgwickEstimator, MahonyEstimator, VqfEstimator
-from estimators.complementary import ComplementaryEstimator
-from estimators.config import ESTIMATOR_NAMES
-from estimators.ekf import EkfEstimator
-from estimators.ukf import UkfEstimator
-from testbed.config import Config
-from testbed.errors import UserError
+from testbed.model.registry import Registry
 
-ESTIMATORS: dict[str, type[Estimator]] = {
-    cls.name: cls for cls in (EkfEstimator, UkfEstimator, ComplementaryEstimator, MadgwickEstimator,
-                              MahonyEstimator, VqfEstimator)
-}
-assert tuple(ESTIMATORS) == ESTIMATOR_NAMES
+ESTIMATORS = Registry.of_subclasses("estimator", "estimators", Estimator)
+NONE = "none"     # no estimator
 
 
-def make_estimator(name: str, config: Config) -> Estimator:
-    """A fresh estimator with the run's tuning (config.estimators), robot geometry (config.robot),
-    gravity (config.run) and IMU mounting (config.sensors.imu)."""
-    if name not in ESTIMATORS:
-        raise UserError(f"unknown estimator '{name}' (choose from {', '.join(ESTIMATORS)})")
-    return ESTIMATORS[name].from_config(config)
+def check_estimator_spec(spec: str) -> None:
+    if spec != NONE:
+        ESTIMATORS.check_spec(spec)
+
+
+def resolve_estimator(spec: str):
+    """The estimator class of `spec`, or None for `none`."""
+    return None if spec == NONE else ESTIMATORS.resolve(spec)
+
+
+def make_estimator(spec: str, config) -> Estimator:
+    """A fresh estimator: `cls.from_config(config)` (the run's tuning, geometry, gravity and IMU
+    mounting) when the class has it, else `cls()`."""
+    return ESTIMATORS.build(spec, config)

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.config import TerrainEstimatorConfig
 from estimators.linalg import inverse3, product3
 

@@ -24,15 +24,14 @@ import math
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.config import FusionConfig, TerrainEstimatorConfig, UkfConfig
 from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
                                NominalState, apply_preintegration, foot, inject, reset_jacobian)
 from estimators.linalg import inverse3
 from estimators.preintegration import J_P_A, J_P_G, J_R, J_V_A, J_V_G, Preintegration
-from testbed.config import Config
-from testbed.kinematics import LegGeometry
+from testbed.model.kinematics import LegGeometry
 
 I3 = np.eye(3)
 
@@ -106,7 +105,7 @@ class UkfEstimator(FusionEstimator):
         super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time)
 
     @classmethod
-    def from_config(cls, config: Config) -> "UkfEstimator":
+    def from_config(cls, config) -> "UkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, config.estimators.ukf,
                    LegGeometry.from_config(config.robot), config.robot.foot_radius, config.run.gravity,
                    imu_rotation(config), imu_position(config), config.gait.startup_time)

@@ -1,1 +1,7 @@
-"""Sensor models: functions of ground truth plus a seeded random generator."""
+"""Sensor models: functions of ground truth plus a seeded random generator.
+
+The sample types are what estimators and controllers receive."""
+
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
+
+__all__ = ["AccelSample", "EncoderSample", "FootSample", "ImuSample", "Sample"]

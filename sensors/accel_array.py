@@ -13,7 +13,7 @@ from sensors.inertial_errors import InertialChannels, TriadErrors
 from sensors.motion import MotionCache
 from sensors.samples import AccelSample
 from sensors.sampling import SampleClock, measure, sensor_seed
-from testbed.truth import Truth
+from testbed.model.truth import Truth
 
 
 class AccelArray:

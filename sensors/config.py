@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sensors.faults import Fault, parse_fault
-from testbed.validation import non_negative, require
+from testbed.model.validation import non_negative, require
 
 ACCEL_ARRAY_LAYOUTS = ("imu_only", "quad", "custom")
 # The "quad" layout: four accelerometers near the corners of the top plate of the 0.20 x 0.15 x

@@ -13,7 +13,7 @@ from sensors.config import EncoderConfig
 from sensors.faults import Fault, FaultInjector
 from sensors.samples import EncoderSample
 from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
-from testbed.truth import NUM_JOINTS, Truth
+from testbed.model.truth import NUM_JOINTS, Truth
 
 
 class Encoders:

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from testbed.errors import ConfigError
+from testbed.model.errors import ConfigError
 
 KINDS = ("dropout", "stuck", "spike", "bias_step")
 AXES = ("x", "y", "z")

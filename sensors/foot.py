@@ -12,7 +12,7 @@ from sensors.config import FootConfig
 from sensors.faults import Fault, FaultInjector
 from sensors.samples import FootSample
 from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
-from testbed.truth import NUM_LEGS, Truth
+from testbed.model.truth import NUM_LEGS, Truth
 
 
 class FootSensors:

@@ -14,7 +14,7 @@ from sensors.inertial_errors import InertialChannels, TriadErrors, corrupt_value
 from sensors.motion import BodyMotion, MotionCache, body_motion_arrays
 from sensors.samples import ImuSample
 from sensors.sampling import SampleClock, measure, sensor_seed
-from testbed.truth import Truth
+from testbed.model.truth import Truth
 
 
 class Imu:

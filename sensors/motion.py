@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from testbed.truth import Truth
+from testbed.model.truth import Truth
 
 
 class BodyMotion:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.truth import NUM_JOINTS, NUM_LEGS, Truth
+from testbed.model.truth import NUM_JOINTS, NUM_LEGS, Truth
 
 
 def still_truth(t: float = 0.0, rotation: np.ndarray | None = None, foot_force: float = 0.0) -> Truth:

@@ -21,10 +21,7 @@ from sensors.imu import Imu
 from sensors.motion import MotionCache
 from sensors.samples import Sample
 from sensors.sampling import SampleClock
-from testbed.truth import Truth
-
-if TYPE_CHECKING:
-    from testbed.config import Config
+from testbed.model.truth import Truth
 
 
 class Sensor(Protocol):
@@ -49,7 +46,7 @@ class SensorSuite:
         self._previous: Truth | None = None
 
     @classmethod
-    def from_config(cls, config: Config) -> SensorSuite:
+    def from_config(cls, config) -> SensorSuite:
         """The suite of a run: its sensors config, gravity and seed."""
         return cls(config.sensors, config.run.gravity, config.run.seed)
 

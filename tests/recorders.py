@@ -1,6 +1,6 @@
-"""A recorder for tests: keeps every tick of a run (testbed.runner.run) and how it finished."""
+"""A recorder for tests: keeps every tick of a run (testbed.runtime.runner.run) and how it finished."""
 
-from testbed.recording import NullRecorder
+from testbed.runtime.recording import NullRecorder
 
 
 class Collect(NullRecorder):

@@ -17,9 +17,9 @@ import json
 import numpy as np
 import pytest
 
-from estimators.config import ESTIMATOR_NAMES
-from testbed import bench, bench_report
-from testbed.cli import main
+from estimators.registry import ESTIMATORS
+from testbed.tools import bench, bench_report
+from testbed.tools.cli import main
 
 SMALL = bench.BenchSet(seeds=(0, 1), duration=10.0, fault_seeds=(0,))
 FULL = bench.BenchSet()
@@ -48,8 +48,8 @@ def test_small_set_meets_the_estimator_targets(small):
 @pytest.mark.slow
 def test_small_set_replays_every_estimator_on_the_same_data(small):
     clean = [r for r in small.replays if r.scenario.fault == "none"]
-    assert {r.estimator for r in clean} == set(ESTIMATOR_NAMES)
-    assert len(clean) == len(SMALL.terrains) * len(SMALL.seeds) * len(ESTIMATOR_NAMES)
+    assert {r.estimator for r in clean} == set(ESTIMATORS.names())
+    assert len(clean) == len(SMALL.terrains) * len(SMALL.seeds) * len(ESTIMATORS.names())
     for replay in clean:
         assert all(np.isfinite(replay.metrics[key]) for key in ("roll_rmse_deg", "pitch_rmse_deg"))
         assert replay.cost["ImuSample"]["count"] == pytest.approx(1000 * SMALL.duration, abs=2)
@@ -107,7 +107,7 @@ def test_results_page_includes_every_fragment_verbatim(tmp_path):
 
 @pytest.mark.parametrize("arguments, message", [
     (["--terrains", "moon"], "unknown 'moon'"),
-    (["--estimators", "ekf,kalman"], "unknown 'kalman'"),
+    (["--estimators", "ekf,kalman"], "unknown estimator 'kalman'"),
     (["--seeds", "0"], "--seeds must be at least 1"),
     (["--duration", "1"], "--duration must be at least 2 s"),
     (["--faults", "meteor"], "unknown 'meteor'"),

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import config as config_module
-from testbed.metrics import body_tilt_deg
-from testbed.runner import run
+from testbed.runtime import config as config_module
+from testbed.runtime.metrics import body_tilt_deg
+from testbed.runtime.runner import run
 
 ROOT = Path(__file__).resolve().parents[2]
 DURATION, SEED = 20.0, 3

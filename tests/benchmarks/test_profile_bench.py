@@ -10,8 +10,9 @@ import time
 
 import pytest
 
-from testbed import bench_report, config
-from testbed.profile import DEFAULT_DURATION, profile
+from testbed.runtime import config
+from testbed.tools import bench_report
+from testbed.tools.profile import DEFAULT_DURATION, profile
 
 pytestmark = pytest.mark.bench
 TARGET = 5.0

@@ -16,8 +16,8 @@ import time
 import pyarrow.parquet as pq
 import pytest
 
-from testbed import bench_report, sweep
-from testbed.cli import main
+from testbed.tools import bench_report, sweep
+from testbed.tools.cli import main
 
 pytestmark = pytest.mark.bench
 

@@ -15,7 +15,7 @@ from sensors.samples import AccelSample
 from tests.datasets.conftest import faulty_config
 from tests.datasets.test_wire import SPECIAL, floats
 from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
-from testbed.contact import FootContacts
+from testbed.world.contact import FootContacts
 
 
 def _recorder(tmp_path, config) -> McapRecorder:

@@ -12,8 +12,8 @@ from datasets.reader import read_recording
 from estimators.scoring import METRIC_KEYS
 from tests.datasets.conftest import run_rerun
 from tests.datasets.ticks import synthetic_config
-from testbed.cli import OneLineParser
-from testbed.errors import UserError
+from testbed.tools.cli import OneLineParser
+from testbed.model.errors import UserError
 
 
 def parse(*argv: str) -> argparse.Namespace:
@@ -124,7 +124,7 @@ def test_after_run_writes_the_rrd_only_when_asked(ekf_run, tmp_path):
 def test_default_run_paths_never_collide_within_one_second(tmp_path):
     """Parallel runs started in the same second get different files (the .partial is reserved)."""
     from datasets.commands import default_run_path
-    from testbed import config
+    from testbed.runtime import config
     cfg = config.load()
     paths = [default_run_path(cfg, tmp_path) for _ in range(3)]
     assert len(set(paths)) == 3

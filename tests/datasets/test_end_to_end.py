@@ -15,10 +15,10 @@ import pytest
 from datasets.reader import read_recording
 from estimators.scoring import METRIC_KEYS
 from tests.datasets.conftest import run_rerun
-from testbed.cli import build_parser
-from testbed.errors import UserError
+from testbed.tools.cli import build_parser
+from testbed.model.errors import UserError
 
-TESTBED = [sys.executable, "-m", "testbed.cli"]
+TESTBED = [sys.executable, "-m", "testbed.tools.cli"]
 
 
 def _cli_records_runs() -> bool:

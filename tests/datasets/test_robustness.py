@@ -19,7 +19,7 @@ from datasets.replay import replay
 from tests.datasets.conftest import record, run_rerun
 from tests.datasets.test_roundtrip import assert_same_sample
 from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
-from testbed.errors import UserError
+from testbed.model.errors import UserError
 
 
 def cut(source, target, fraction: float) -> None:

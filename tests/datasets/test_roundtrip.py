@@ -13,7 +13,7 @@ from datasets.reader import read_description, read_recording
 from sensors.samples import AccelSample, FootSample, ImuSample
 from tests.datasets.conftest import record, run_rerun
 from tests.datasets.ticks import generate_ticks, synthetic_config
-from testbed.robot import build_urdf
+from testbed.model.robot import build_urdf
 
 ARRAY_FIELDS = {"ImuSample": ("accel", "gyro"), "AccelSample": ("accel",), "EncoderSample": ("positions",),
                 "FootSample": ("normal_forces", "contact")}

@@ -9,9 +9,9 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from datasets import codec, schemas, wire
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample
-from testbed.contact import FootContacts
-from testbed.recording import Command
-from testbed.truth import Truth
+from testbed.world.contact import FootContacts
+from testbed.control.command import Command
+from testbed.model.truth import Truth
 
 SPECIAL = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1e-310, 5e-324, 1.0, -2.5])
 

@@ -10,13 +10,14 @@ from scipy.spatial.transform import Rotation
 
 from estimators.registry import make_estimator
 from sensors.suite import SensorSuite
-from testbed import config as config_module
-from testbed.config import Config
-from testbed.contact import FootContacts
-from testbed.recording import Command, Tick
-from testbed.robot import build_urdf
-from testbed.terrain import FlatTerrain
-from testbed.truth import Truth
+from testbed.runtime import config as config_module
+from testbed.runtime.config import Config
+from testbed.world.contact import FootContacts
+from testbed.control.command import Command
+from testbed.runtime.recording import Tick
+from testbed.model.robot import build_urdf
+from testbed.world.terrain import FlatTerrain
+from testbed.model.truth import Truth
 
 ROCK_HZ = 1.0
 ROLL_AMPLITUDE = np.radians(3.0)

@@ -8,8 +8,8 @@ import pytest
 from estimators.base import Estimate, run_estimator
 from estimators.registry import make_estimator
 from estimators.scoring import EstimateArrays, estimate_arrays
-from testbed import config as testbed_config
-from testbed.kinematics import LegGeometry, nominal_stance
+from testbed.runtime import config as testbed_config
+from testbed.model.kinematics import LegGeometry, nominal_stance
 from tests.estimators import synthetic
 
 WALK_SECONDS = 6.0

@@ -6,7 +6,7 @@ gets acceleration bursts of about 2 m/s^2 at every tripod touchdown and walks fo
 5 cm/s on a plane ground (flat or sloped). The motion fades in over the first second from
 standing still, as a run starts. Tripod legs 1-3-5 and 2-4-6 alternate, with a short
 double support; a stance foot stays fixed in the world, a swing foot moves on an arc to its next
-foothold, and the joint angles come from testbed.kinematics' inverse kinematics.
+foothold, and the joint angles come from testbed.model.kinematics' inverse kinematics.
 Sensors: the IMU gives the specific force R^T (a - g_vec) (lever arm included) and the body rate
 with white noise and a constant gyro bias; encoders add white noise to the joint angles and
 quantise them; foot contacts are exact. Rates as the testbed's default sensors: IMU 1 kHz,
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sensors.samples import EncoderSample, FootSample, ImuSample
-from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
+from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 
 GRAVITY = 9.81
 ROBOT_WEIGHT = 23.0        # N, shared by the feet on the ground

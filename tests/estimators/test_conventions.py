@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from estimators.base import run_estimator
 from estimators.baselines import scalar_first, scalar_last
-from estimators.config import ESTIMATOR_NAMES
+from estimators.registry import ESTIMATORS
 from estimators.registry import make_estimator
 from sensors.samples import ImuSample
 from tests.estimators import synthetic
@@ -19,7 +19,7 @@ from tests.estimators.helpers import tilt_errors_deg
 CLEAN = dict(gyro_bias_deg_s=0.0)
 # The UKF shares the EKF's front end (mounting, initialisation, outputs) and is about 20 times
 # slower; it is checked here on the still robot and against the EKF in test_ukf.py.
-WITHOUT_UKF = tuple(name for name in ESTIMATOR_NAMES if name != "ukf")
+WITHOUT_UKF = tuple(name for name in ESTIMATORS.names() if name != "ukf")
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def pivot(geometry, stance):
     return synthetic.pivoting_trajectory(geometry, stance, math.radians(10), math.radians(-8), math.radians(20))
 
 
-@pytest.mark.parametrize("name", ESTIMATOR_NAMES)
+@pytest.mark.parametrize("name", ESTIMATORS.names())
 def test_still_tilted_robot(name, config, spec, still):
     samples = synthetic.samples(still, replace(spec, **CLEAN), 1)
     if name == "ukf":

@@ -6,7 +6,7 @@ from unittest import mock
 import numpy as np
 from numba import njit
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import Estimator
 from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FOOT0, _foot_nis

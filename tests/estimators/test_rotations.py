@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimators import linalg
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 
 RNG = np.random.default_rng(4)
 ROTATIONS = Rotation.random(50, random_state=5)

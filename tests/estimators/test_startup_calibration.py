@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from sensors.suite import SensorSuite
-from testbed import config as config_module
-from testbed.runner import run, true_roll_pitch
+from testbed.runtime import config as config_module
+from testbed.runtime.runner import run, true_roll_pitch
 from tests.recorders import Collect
 
 OFFSET_STD = 0.098      # m/s^2: 10 mg per axis, five times the default IMU's calibrated residual

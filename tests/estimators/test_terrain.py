@@ -10,7 +10,7 @@ from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
 from estimators.scoring import TerrainTruth, estimate_arrays, score, support_plane_truth
 from estimators.terrain import TerrainFilter, fit_plane, heading_terrain_angles, slopes_and_height
-from testbed.kinematics import inverse_kinematics_all
+from testbed.model.kinematics import inverse_kinematics_all
 from tests.estimators import synthetic
 
 SLOPE = math.radians(10.0)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimators import rotations as rot
+from testbed.model import spatial as rot
 from estimators.base import run_estimator
 from estimators.ekf import predict
 from estimators.fusion import ACCEL_BIAS, BIAS, ERROR_DIM, NominalState, apply_preintegration, inject

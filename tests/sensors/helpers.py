@@ -9,8 +9,8 @@ from sensors.config import SensorsConfig
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from sensors.still import still_truth
 from sensors.suite import SensorSuite
-from testbed import config as testbed_config
-from testbed.truth import NUM_JOINTS, NUM_LEGS, Truth
+from testbed.runtime import config as testbed_config
+from testbed.model.truth import NUM_JOINTS, NUM_LEGS, Truth
 
 GRAVITY = 9.81
 IDEAL_AXES = {"turn_on_bias": 0.0, "scale_factor": 0.0, "misalignment": 0.0, "bias_instability": 0.0,

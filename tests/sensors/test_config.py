@@ -6,8 +6,8 @@ import tomllib
 import pytest
 
 from sensors.config import SensorsConfig
-from testbed import config as testbed_config
-from testbed.errors import ConfigError
+from testbed.runtime import config as testbed_config
+from testbed.model.errors import ConfigError
 from tests.sensors.helpers import sensors_config
 
 

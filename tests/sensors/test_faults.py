@@ -8,7 +8,7 @@ import pytest
 
 from sensors.faults import parse_fault
 from sensors.samples import FootSample, ImuSample
-from testbed.errors import ConfigError
+from testbed.model.errors import ConfigError
 from tests.sensors.helpers import flatten, of_type, run, sensors_config, steps, truth
 
 SECONDS = 1.0

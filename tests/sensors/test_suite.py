@@ -8,7 +8,7 @@ from sensors.imu import Imu
 from sensors.motion import MotionCache
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample
 from sensors.suite import SensorSuite
-from testbed import config as testbed_config
+from testbed.runtime import config as testbed_config
 from tests.sensors.helpers import GRAVITY, flatten, ideal_imu, of_type, run, sensors_config, steps, truth
 
 

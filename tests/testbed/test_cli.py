@@ -8,9 +8,9 @@ from pathlib import Path
 import dartpy as dart
 import pytest
 
-from testbed.cli import main
+from testbed.tools.cli import main
 
-TESTBED = [sys.executable, "-m", "testbed.cli"]
+TESTBED = [sys.executable, "-m", "testbed.tools.cli"]
 
 
 def test_run_writes_the_foundation_metrics(tmp_path, capsys):
@@ -95,6 +95,6 @@ def test_invalid_toml_file_from_a_real_process(tmp_path):
     (["run", "--speed", "0"], None),                        # no motion asked: the default (stand)
 ])
 def test_a_motion_command_without_a_gait_walks_the_tripod(argv, gait):
-    from testbed.cli import _run_overrides, build_parser
+    from testbed.tools.cli import _run_overrides, build_parser
     overrides = _run_overrides(build_parser().parse_args(argv))
     assert overrides.get("run", {}).get("gait") == gait

@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from testbed import config
-from testbed.errors import ConfigError
+from testbed.runtime import config
+from testbed.model.errors import ConfigError
 
 
 def test_defaults_load_and_round_trip_through_toml(tmp_path):

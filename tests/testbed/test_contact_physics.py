@@ -6,8 +6,8 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.runner import build_simulation
+from testbed.runtime import config
+from testbed.runtime.runner import build_simulation
 
 CONTACTS = ["compliant", "dart"]
 
@@ -107,9 +107,9 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
     """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
     comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted. (The
     state read-out computes the contact: its first call is at t = 0, its 50th after step 49.)"""
-    from testbed import simulation
-    from testbed.recording import NullRecorder
-    from testbed.runner import run
+    from testbed.world import simulation
+    from testbed.runtime.recording import NullRecorder
+    from testbed.runtime.runner import run
 
     kernel, calls = simulation._read_out, []
 
@@ -132,8 +132,8 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
 
 
 def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
-    from testbed import simulation
-    from testbed.runner import run
+    from testbed.world import simulation
+    from testbed.runtime.runner import run
 
     def broken(*args):
         raise SystemError("something else")

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.gait import GAIT_TABLE, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, _walk_plane
-from testbed.kinematics import LegGeometry, nominal_stance
+from testbed.runtime import config
+from testbed.control.gait import GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, _walk_plane
+from testbed.model.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -24,7 +24,7 @@ def swing_schedule(name: str, cycles: int = 3, period: float = 1.2) -> tuple[np.
 @pytest.mark.parametrize("name, duty", [("tripod", 1 / 2), ("ripple", 2 / 3), ("wave", 5 / 6)])
 def test_duty_factor_of_every_leg_matches_the_table(name, duty):
     _, swing = swing_schedule(name)
-    assert GAIT_TABLE[name][0] == pytest.approx(duty)
+    assert GAITS.resolve(name).duty == pytest.approx(duty)
     assert np.allclose(1.0 - swing.mean(axis=0), duty, atol=2e-3)
 
 
@@ -36,8 +36,8 @@ def test_swing_starts_at_the_tabled_phase_offsets(name):
     for leg in range(6):
         leg_starts = t[1:][np.diff(swing[:, leg].astype(int)) == 1]
         offsets = np.mod(leg_starts / period, 1.0)
-        assert np.allclose(offsets, GAIT_TABLE[name][1][leg], atol=2e-3) or \
-            np.allclose(np.mod(offsets - GAIT_TABLE[name][1][leg] + 0.5, 1.0) - 0.5, 0.0, atol=2e-3)
+        assert np.allclose(offsets, GAITS.resolve(name).swing_start[leg], atol=2e-3) or \
+            np.allclose(np.mod(offsets - GAITS.resolve(name).swing_start[leg] + 0.5, 1.0) - 0.5, 0.0, atol=2e-3)
     assert len(starts) >= 2
 
 

@@ -4,13 +4,13 @@ one compiled call), the Jacobian, and the world-frame feet the simulation reads.
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.kinematics import (LegGeometry, UnreachableTarget, foot_jacobian, foot_positions,
+from testbed.runtime import config
+from testbed.model.kinematics import (LegGeometry, UnreachableTarget, foot_jacobian, foot_positions,
                                 inverse_kinematics, inverse_kinematics_all, inverse_kinematics_legs,
                                 joint_targets_or_last, leg_transform, matrix_times_vector, nominal_stance,
                                 rows_times_matrix, world_feet)
-from testbed.robot import LEG_NAMES, build_urdf, foot_offset
-from testbed.simulation import load_robot
+from testbed.model.robot import LEG_NAMES, build_urdf, foot_offset
+from testbed.world.simulation import load_robot
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -94,7 +94,7 @@ def test_nominal_stance_is_reachable_with_knees_up():
 
 
 def reference_inverse_kinematics(leg: int, target: np.ndarray, elbow: str) -> np.ndarray | None:
-    """The closed form written with numpy, independently of testbed.kinematics; None: unreachable."""
+    """The closed form written with numpy, independently of testbed.model.kinematics; None: unreachable."""
     c0, s0 = np.cos(GEOM.base_angle[leg]), np.sin(GEOM.base_angle[leg])
     rel = target - GEOM.base_distance[leg] * np.array([c0, s0, 0.0])
     x0, y0, z0 = c0 * rel[0] + s0 * rel[1], -s0 * rel[0] + c0 * rel[1], rel[2]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.navigation import TargetWalker
+from testbed.runtime import config
+from testbed.control.navigation import TargetWalker
 
 CFG = config.load()
 CRAWL = CFG.gait.speed * CFG.gait.target_tolerance / (2 * CFG.gait.max_step_length)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
-from testbed.odometry import GyroHeading, LegOdometry
-from testbed.stability import stability_margin, stance_support, support_polygon
+from testbed.runtime import config
+from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
+from testbed.control.odometry import GyroHeading, LegOdometry
+from testbed.world.stability import stability_margin, stance_support, support_polygon
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -191,8 +191,8 @@ def test_gyro_heading_integrates_as_the_estimators_rotation_helpers_bit_for_bit(
     take the small-angle branch)."""
     from scipy.spatial.transform import Rotation
 
-    from estimators import rotations as rot
-    from testbed.odometry import _turn
+    from testbed.model import spatial as rot
+    from testbed.control.odometry import _turn
 
     rng = np.random.default_rng(0)
     bias = rng.normal(0.0, 0.01, 3)
@@ -212,9 +212,9 @@ def test_gyro_heading_integrates_as_the_estimators_rotation_helpers_bit_for_bit(
 
 def test_support_counts_touching_feet_and_stance_feet_resting_on_the_ground():
     from types import SimpleNamespace
-    from testbed.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
-    from testbed.terrain import make_terrain
-    terrain = make_terrain("flat", CFG.terrain, np.random.default_rng(0))
+    from testbed.runtime.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
+    from testbed.world.terrain import make_terrain
+    terrain = make_terrain("flat", CFG, np.random.default_rng(0))
     radius = CFG.robot.foot_radius
     support = SupportTracker(terrain, radius)
     feet = np.column_stack([NEUTRAL[:, :2], np.full(6, radius)])
@@ -241,13 +241,13 @@ def test_support_on_terrain_in_one_call_equals_the_two_call_path(name):
     stance_support, Terrain.closest and stance_support again, bit for bit; so is its Python path
     for a terrain with candidate boxes of its own."""
     from types import SimpleNamespace
-    from testbed.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
-    from testbed.terrain import make_terrain
+    from testbed.runtime.runner import CONTACT_DEBOUNCE, GROUND_TOLERANCE, SupportTracker
+    from testbed.world.terrain import make_terrain
     from tests.testbed.test_terrain import OwnCandidates
-    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(2))
+    terrain = make_terrain(name, CFG, np.random.default_rng(2))
     radius = CFG.robot.foot_radius
     support, last_touch = SupportTracker(terrain, radius), np.full(6, -np.inf)
-    own = SupportTracker(OwnCandidates.of(make_terrain(name, CFG.terrain, np.random.default_rng(2))), radius)
+    own = SupportTracker(OwnCandidates.of(make_terrain(name, CFG, np.random.default_rng(2))), radius)
     rng = np.random.default_rng(7)
     asked = 0
     for step in range(600):

@@ -4,10 +4,10 @@ import math
 
 import numpy as np
 
-from testbed import config
-from testbed.kinematics import LegGeometry, joint_targets_or_last, nominal_stance
-from testbed.pilot import NO_LOOP_GAINS, NO_LOOP_STATE, _body_targets_and_joints, tick_constants
-from testbed.posture import PostureController, PostureMeasurement, tilted_targets
+from testbed.runtime import config
+from testbed.model.kinematics import LegGeometry, joint_targets_or_last, nominal_stance
+from testbed.control.pilot import NO_LOOP_GAINS, NO_LOOP_STATE, _body_targets_and_joints, tick_constants
+from testbed.control.posture import PostureController, PostureMeasurement, tilted_targets
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.errors import ConfigError
-from testbed.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.kinematics import LegGeometry, foot_positions, inverse_kinematics_all, nominal_stance
-from testbed.posture import PiLoop, PostureController, PostureMeasurement, correction_rotation, kinematic_height
-from testbed.runner import run
+from testbed.runtime import config
+from testbed.model.errors import ConfigError
+from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist
+from testbed.model.kinematics import LegGeometry, foot_positions, inverse_kinematics_all, nominal_stance
+from testbed.control.posture import PiLoop, PostureController, PostureMeasurement, correction_rotation, kinematic_height
+from testbed.runtime.runner import run
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -150,7 +150,7 @@ def test_the_gait_frame_follows_the_stance_plane_down_a_step():
 
 @pytest.mark.parametrize("axis", ["roll", "pitch", "height"])
 def test_designed_loops_have_the_required_margins(axis):
-    from testbed.posture_design import analyse
+    from testbed.tools.posture_design import analyse
     report = analyse(CFG, axis)
     assert 0.8 < report.plant.gain < 1.2 and 0.005 < report.plant.time_constant < 0.05
     assert report.gain_margin_db >= 6.0 and report.phase_margin_deg >= 45.0

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from testbed import config
-from testbed.errors import ConfigError
-from testbed.presets import preset_names, preset_overrides
+from testbed.runtime import config
+from testbed.model.errors import ConfigError
+from testbed.runtime.presets import preset_names, preset_overrides
 
 G0 = 9.80665
 DEG = math.pi / 180

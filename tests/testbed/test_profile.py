@@ -6,8 +6,8 @@ import time
 
 import pytest
 
-from testbed.cli import main
-from testbed.profile import STAGES, StageClock, calibrate_wrapper
+from testbed.tools.cli import main
+from testbed.tools.profile import STAGES, StageClock, calibrate_wrapper
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from sensors.samples import ImuSample
-from testbed import config
-from testbed.runner import run
+from testbed.runtime import config
+from testbed.runtime.runner import run
 from tests.recorders import Collect
 
 

@@ -7,9 +7,9 @@ after the first step of a run) can give a twist component of -0.0 where DART giv
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.runner import build_simulation
-from testbed.simulation import free_joint_transform, free_joint_twist
+from testbed.runtime import config
+from testbed.runtime.runner import build_simulation
+from testbed.world.simulation import free_joint_transform, free_joint_twist
 
 
 def assert_same_bits(ours: np.ndarray, dart: np.ndarray) -> None:
@@ -84,8 +84,8 @@ def test_contact_in_the_read_out_equals_the_contact_model_bit_for_bit(terrain):
     """The read-out computes the next step's compliant contact with the state: the forces, normals,
     points and flags of CompliantContact.compute on the feet of world_feet (its own anchors), and
     addExtForce gets those forces at those points."""
-    from testbed.contact import CompliantContact
-    from testbed.kinematics import world_feet
+    from testbed.world.contact import CompliantContact
+    from testbed.model.kinematics import world_feet
     cfg = config.load(overrides={"run": {"terrain": terrain, "gait": "tripod"}})
     sim = build_simulation(cfg)
     model = CompliantContact(cfg.contact, sim.terrain, cfg.robot.foot_radius)
@@ -114,11 +114,11 @@ def test_contact_in_the_read_out_equals_the_contact_model_bit_for_bit(terrain):
 def test_terrain_with_its_own_candidates_gives_the_same_run(terrain):
     """A terrain without a candidate rule takes the read-out's Python path for its candidate boxes
     (and the ground check's): the same run bit for bit."""
-    from testbed.terrain import make_terrain
-    from testbed.simulation import Simulation
+    from testbed.world.terrain import make_terrain
+    from testbed.world.simulation import Simulation
     from tests.testbed.test_terrain import OwnCandidates
     cfg = config.load(overrides={"run": {"terrain": terrain}})
-    make = lambda: make_terrain(terrain, cfg.terrain, np.random.default_rng(1))
+    make = lambda: make_terrain(terrain, cfg, np.random.default_rng(1))
     ruled, own = Simulation(cfg, make()), Simulation(cfg, OwnCandidates.of(make()))
     assert own._candidate_rule is None and ruled._candidate_rule is not None
     for _ in zip(walk(ruled, 300), walk(own, 300)):
@@ -134,7 +134,7 @@ def test_body_ground_check_equals_numpy_corners_in_the_boxes(terrain):
     """The compiled ground check against the numpy version it replaced (corners @ R.T + p, then
     the distances to the terrain's candidate boxes), over poses in, near and above the ground."""
     from scipy.spatial.transform import Rotation
-    from testbed.terrain import distances_to_boxes
+    from testbed.world.terrain import distances_to_boxes
     sim = build_simulation(config.load(overrides={"run": {"terrain": terrain}}))
     rng = np.random.default_rng(8)
     rotations = Rotation.random(400, random_state=9).as_matrix()

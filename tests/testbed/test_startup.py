@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from testbed import config as config_module
-from testbed.errors import ConfigError
-from testbed.runner import run, true_roll_pitch
-from testbed.startup import POSES, CalibrationPoses, minimum_jerk
+from testbed.runtime import config as config_module
+from testbed.model.errors import ConfigError
+from testbed.runtime.runner import run, true_roll_pitch
+from testbed.control.startup import POSES, CalibrationPoses, minimum_jerk
 from tests.recorders import Collect
 
 TILT = math.radians(12.0)

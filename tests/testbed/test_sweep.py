@@ -23,9 +23,9 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
 
-from testbed import sweep
-from testbed.cli import main
-from testbed.presets import preset_overrides
+from testbed.tools import sweep
+from testbed.tools.cli import main
+from testbed.runtime.presets import preset_overrides
 
 BIN = Path(sys.executable).parent
 TESTBED = str(BIN / "testbed")

@@ -4,10 +4,10 @@ import dartpy as dart
 import numpy as np
 import pytest
 
-from testbed import config
-from testbed.errors import ConfigError
-from testbed.simulation import build_terrain_skeleton
-from testbed.terrain import make_terrain
+from testbed.runtime import config
+from testbed.model.errors import ConfigError
+from testbed.world.simulation import build_terrain_skeleton
+from testbed.world.terrain import make_terrain
 
 CFG = config.load()
 
@@ -25,7 +25,7 @@ SMALL = config.load(overrides={"terrain": {"extent": [-1.5, 1.5, -1.0, 1.0]}})
 
 @pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
 def test_height_and_normal_agree_with_dart_shapes(name):
-    terrain = make_terrain(name, SMALL.terrain, np.random.default_rng(3))
+    terrain = make_terrain(name, SMALL, np.random.default_rng(3))
     detector = dart.collision.BulletCollisionDetector()   # the detector with raycasts in DART
     group = detector.createCollisionGroup()
     skeleton = build_terrain_skeleton(terrain, 0.8)   # keep alive: the group does not own it
@@ -44,7 +44,7 @@ def test_height_and_normal_agree_with_dart_shapes(name):
 
 @pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
 def test_closest_point_query_matches_height_above_surface(name):
-    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(5))
+    terrain = make_terrain(name, CFG, np.random.default_rng(5))
     rng = np.random.default_rng(6)
     cell = CFG.terrain.rough_cell
     xy = (np.floor(rng.uniform([-1, -2], [5, 2], (30, 2)) / cell) + 0.5) * cell
@@ -59,7 +59,7 @@ def test_closest_point_query_matches_height_above_surface(name):
 
 def test_step_riser_pushes_sideways():
     up_step = config.load(overrides={"terrain": {"step_height": 0.04}})
-    terrain = make_terrain("step", up_step.terrain, np.random.default_rng(0))
+    terrain = make_terrain("step", up_step, np.random.default_rng(0))
     edge = CFG.terrain.step_edge_x
     distance, normal = terrain.closest(np.array([[edge - 0.005, 0.0, 0.02]]))
     assert distance[0] == pytest.approx(0.005)
@@ -67,9 +67,9 @@ def test_step_riser_pushes_sideways():
 
 
 def test_rough_terrain_is_seeded_and_bounded():
-    a = make_terrain("rough", CFG.terrain, np.random.default_rng(7))
-    b = make_terrain("rough", CFG.terrain, np.random.default_rng(7))
-    c = make_terrain("rough", CFG.terrain, np.random.default_rng(8))
+    a = make_terrain("rough", CFG, np.random.default_rng(7))
+    b = make_terrain("rough", CFG, np.random.default_rng(7))
+    c = make_terrain("rough", CFG, np.random.default_rng(8))
     assert np.array_equal(a.tops, b.tops)
     assert not np.array_equal(a.tops, c.tops)
     assert np.abs(a.tops).max() <= CFG.terrain.rough_amplitude
@@ -79,7 +79,7 @@ def test_rough_terrain_is_seeded_and_bounded():
 def test_step_edge_outside_extent_is_rejected():
     bad = config.load(overrides={"terrain": {"step_edge_x": 100.0}})
     with pytest.raises(ConfigError, match="step_edge_x"):
-        make_terrain("step", bad.terrain, np.random.default_rng(0))
+        make_terrain("step", bad, np.random.default_rng(0))
 
 
 class OwnCandidates:
@@ -95,8 +95,8 @@ class OwnCandidates:
 
 @pytest.mark.parametrize("name", ["flat", "slope", "step", "rough"])
 def test_candidate_rules_give_the_terrains_candidates_and_closest_distances(name):
-    from testbed.terrain import candidates_by_rule, closest_distance
-    terrain = make_terrain(name, CFG.terrain, np.random.default_rng(3))
+    from testbed.world.terrain import candidates_by_rule, closest_distance
+    terrain = make_terrain(name, CFG, np.random.default_rng(3))
     rule, data = terrain.candidate_rule()
     rng = np.random.default_rng(5)
     points = np.column_stack([rng.uniform(-2.5, 2.5, (300, 2)), rng.uniform(-0.06, 0.06, 300)])
@@ -118,7 +118,7 @@ def test_box_distance_on_scalars_equals_its_array_version_bit_for_bit():
     import math
     from numba import njit
     from scipy.spatial.transform import Rotation
-    from testbed.terrain import _box_distance
+    from testbed.world.terrain import _box_distance
 
     @njit
     def on_arrays(point, center, half, rotation, normal):

@@ -3,8 +3,8 @@ contact models (issue 3's static stability), with the touch-down confirmation an
 
 import pytest
 
-from testbed import config
-from testbed.runner import run
+from testbed.runtime import config
+from testbed.runtime.runner import run
 
 SPEEDS = {"tripod": 0.1, "ripple": 0.06, "wave": 0.04}
 

@@ -1,0 +1,82 @@
+"""Onboard control's config sections: `[gait]` and `[posture]`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from testbed.control.startup import CalibrationPoses
+from testbed.model.validation import finite, non_negative, positive, require
+
+@dataclass(frozen=True)
+class GaitConfig:
+    speed: float
+    lateral_speed: float
+    turn_rate: float
+    target: tuple[float, ...]
+    target_tolerance: float
+    cruise_turn_rate: float
+    heading_gain: float
+    swing_height: float
+    touchdown_search_speed: float
+    touchdown_search_depth: float
+    max_step_length: float
+    tripod_period: float
+    ripple_period: float
+    wave_period: float
+    still_time: float
+    start_ramp: float
+    calibration_tilt_deg: float
+    calibration_rate_dps: float
+    calibration_hold_time: float
+
+    def __post_init__(self) -> None:
+        finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
+        require(abs(self.speed) <= 0.5 and abs(self.lateral_speed) <= 0.5,
+                 f"gait speeds must lie within +-0.5 m/s, got {self.speed}, {self.lateral_speed}")
+        require(abs(self.turn_rate) <= 2.0, f"gait.turn_rate must lie within +-2 rad/s, got {self.turn_rate}")
+        require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
+        finite("gait.target", *self.target)
+        positive("gait.target_tolerance", self.target_tolerance)
+        positive("gait touch-down search", self.touchdown_search_speed, self.touchdown_search_depth)
+        positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
+                         self.max_step_length, self.tripod_period, self.ripple_period, self.wave_period)
+        require(math.isfinite(self.start_ramp) and self.start_ramp >= 0, "gait.start_ramp must be >= 0")
+        require(math.isfinite(self.still_time) and 0.05 <= self.still_time <= 10,
+                 f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
+        require(math.isfinite(self.calibration_tilt_deg) and 0 <= self.calibration_tilt_deg <= 20,
+                 f"gait.calibration_tilt_deg must lie in [0, 20], got {self.calibration_tilt_deg}")
+        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time)
+
+    @property
+    def startup_time(self) -> float:
+        """s from the start to the first step: standing still, then the calibration poses."""
+        return CalibrationPoses.from_gait(self).end
+
+    def period(self, gait: str, default: float = 1.0) -> float:
+        """s per cycle of the named gait: the `<gait>_period` key, else `default` (the gait's own)."""
+        return {"tripod": self.tripod_period, "ripple": self.ripple_period, "wave": self.wave_period}.get(gait, default)
+
+@dataclass(frozen=True)
+class PostureConfig:
+    """The posture controller's gains and limits and the gait's terrain adaptation (docs/control.md)."""
+    tilt_kp: float
+    tilt_ki: float
+    height_kp: float
+    height_ki: float
+    max_tilt_correction_deg: float
+    max_height_correction: float
+    walk_plane_time_constant: float
+    search_speed: float
+    search_depth: float
+    touchdown_phase: float
+
+    def __post_init__(self) -> None:
+        non_negative("posture gains", self.tilt_kp, self.tilt_ki, self.height_kp, self.height_ki)
+        require(0 < self.max_tilt_correction_deg <= 30,
+                 f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")
+        require(0 < self.max_height_correction <= 0.08,
+                 f"posture.max_height_correction must lie in (0, 0.08] m, got {self.max_height_correction}")
+        positive("posture timing", self.walk_plane_time_constant, self.search_speed)
+        require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
+        require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")

@@ -1,0 +1,46 @@
+"""Walk to a target: turn towards it, walk, slow down near it, stop on it.
+
+It steers on the leg-odometry pose (never ground truth). The speed falls in proportion to the
+distance over the last two strides, down to a crawl at the tolerance; inside the tolerance the
+robot keeps crawling while the target is still ahead and stops once it is abeam or behind, so that
+it stops at the point nearest the target, not at the near edge of the tolerance disc (which left
+every run a tolerance short along its path). Stopping costs no overshoot: the stance feet stop
+with the command and the body with them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from testbed.control.config import GaitConfig
+from testbed.control.gait import Twist
+
+
+class TargetWalker:
+    def __init__(self, config: GaitConfig, target: tuple[float, float]):
+        self.config = config
+        self.target = np.asarray(target, dtype=float)
+        self.arrived = False
+
+    def command(self, pose: tuple[float, float, float]) -> Twist:
+        # Python floats, and math's sin and cos (the C library's, as numpy's); numpy's hypot and
+        # arctan2 stay: on this CPU they are its own SIMD code, which can differ in the last bit.
+        if self.arrived:
+            return Twist()
+        x, y, yaw = pose
+        target_x, target_y = self.target.tolist()
+        offset_x, offset_y = target_x - x, target_y - y
+        distance = float(np.hypot(offset_x, offset_y))
+        bearing = float(np.arctan2(offset_y, offset_x))
+        heading_error = float(np.arctan2(math.sin(bearing - yaw), math.cos(bearing - yaw)))
+        if distance < self.config.target_tolerance and math.cos(heading_error) <= 0.0:
+            self.arrived = True
+            return Twist()
+        turn = min(max(self.config.heading_gain * heading_error, -self.config.cruise_turn_rate),
+                   self.config.cruise_turn_rate)
+        # Walk only roughly towards the target.
+        alignment = max(0.0, math.cos(heading_error)) ** 2
+        approach = min(1.0, max(distance, self.config.target_tolerance) / (2.0 * self.config.max_step_length))
+        return Twist(vx=self.config.speed * alignment * approach, wz=turn)

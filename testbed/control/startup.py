@@ -1,0 +1,72 @@
+"""The start-up routine: stand still, then tilt the body through calibration poses, feet planted.
+
+An accelerometer offset reads exactly like a tilt while the body only translates; the two separate
+once the body turns about horizontal axes (gravity then moves through the sensor's axes, the
+offset does not). So before walking the robot tilts its body to roll +tilt, roll -tilt,
+pitch +tilt, pitch -tilt and back to level, holding each pose briefly, with its feet planted. The
+estimators see only the sensors (the poses are in the joint encoders and the gyro); the fusion
+filters estimate the offset over these seconds (estimators/fusion.py). Symmetric poses also
+cancel, to first order, a gyro scale error in the rotation between them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+# (roll, pitch) in units of the tilt, visited in this order after the still start.
+POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
+
+
+def minimum_jerk(fraction: float) -> float:
+    """0 -> 1 with zero velocity and acceleration at both ends (Flash and Hogan 1985)."""
+    s = min(max(fraction, 0.0), 1.0)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+@dataclass(frozen=True)
+class CalibrationPoses:
+    still: float        # s standing still first
+    tilt: float         # rad
+    rate: float         # rad/s, mean turn rate of a move from one pose to the next
+    hold: float         # s at each pose
+
+    @classmethod
+    def from_gait(cls, gait) -> "CalibrationPoses":
+        return cls(gait.still_time, math.radians(gait.calibration_tilt_deg), math.radians(gait.calibration_rate_dps),
+                   gait.calibration_hold_time)
+
+    @cached_property
+    def _moves(self) -> list[tuple[float, float, tuple[float, float], tuple[float, float]]]:
+        """(start time, duration, from, to) of each move, from and to as (roll, pitch) in rad."""
+        moves, t, previous = [], self.still, np.zeros(2)
+        for pose in POSES:
+            target = self.tilt * np.array(pose)
+            duration = float(np.linalg.norm(target - previous)) / self.rate
+            moves.append((t, duration, tuple(previous.tolist()), tuple(target.tolist())))
+            t += duration + self.hold
+            previous = target
+        return moves
+
+    @property
+    def end(self) -> float:
+        """s from the start until the poses are over and the robot stands level again."""
+        if self.tilt == 0.0:
+            return self.still
+        start, duration, _, _ = self._moves[-1]
+        return start + duration + self.hold
+
+    def body_tilt(self, t: float) -> tuple[float, float]:
+        """Commanded body (roll, pitch), rad, at time t."""
+        if self.tilt == 0.0 or t <= self.still or t >= self.end:
+            return 0.0, 0.0
+        for start, duration, (roll_before, pitch_before), (roll_after, pitch_after) in reversed(self._moves):
+            if t >= start:
+                # Python floats: numpy's arithmetic on the pairs, without its per-call cost
+                progress = minimum_jerk((t - start) / duration)
+                return (roll_before + progress * (roll_after - roll_before),
+                        pitch_before + progress * (pitch_after - pitch_before))
+        return 0.0, 0.0

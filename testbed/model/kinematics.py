@@ -1,0 +1,358 @@
+"""Leg kinematics of the paper's hexapod: forward kinematics exactly as eq. 2, closed-form inverse
+kinematics of the anthropomorphic leg (Sciavicco-Siciliano, the paper's reference [8]), and the
+foot Jacobian. Everything is in the body frame O_b x_b y_b z_b; joint vectors are leg-major
+(leg 1: theta_11, theta_21, theta_31; leg 2: ...), as eq. 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Literal, NamedTuple
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from testbed.model.robot_config import RobotConfig
+
+Elbow = Literal["up", "down"]
+
+
+class UnreachableTarget(ValueError):
+    """A foot target that the leg cannot reach, or only outside its joint limits."""
+
+    def __init__(self, leg: int, target: np.ndarray, reason: str):
+        super().__init__(f"leg {leg + 1}: target {np.round(target, 4).tolist()} unreachable: {reason}")
+        self.leg = leg
+        self.target = target
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class LegGeometry:
+    base_angle: np.ndarray       # (6,) rad, theta0_i
+    base_distance: np.ndarray    # (6,) m, a01_i
+    femur: float                 # a2, m
+    tibia: float                 # a3, m
+    lower: np.ndarray            # (3,) rad, joint lower limits (coxa, femur, tibia)
+    upper: np.ndarray            # (3,) rad
+
+    @classmethod
+    def from_config(cls, robot: RobotConfig) -> "LegGeometry":
+        return cls(
+            base_angle=np.radians(robot.leg_base_angle_deg),
+            base_distance=np.asarray(robot.leg_base_distance, dtype=float),
+            femur=robot.femur_length,
+            tibia=robot.tibia_length,
+            lower=np.radians(robot.joint_lower_deg),
+            upper=np.radians(robot.joint_upper_deg),
+        )
+
+    @cached_property
+    def base_cos(self) -> np.ndarray:
+        """(6,) cos theta0_i, computed once: the scalar and the batched IK share these values."""
+        return np.cos(self.base_angle)
+
+    @cached_property
+    def base_sin(self) -> np.ndarray:
+        return np.sin(self.base_angle)
+
+    @property
+    def base_positions(self) -> np.ndarray:
+        """(6, 3) leg base origins O_0i in the body frame."""
+        return np.column_stack([self.base_distance * np.cos(self.base_angle),
+                                self.base_distance * np.sin(self.base_angle),
+                                np.zeros(6)])
+
+
+def base_transform(geom: LegGeometry, leg: int) -> np.ndarray:
+    """T_0i^b of eq. 2: rotation theta0_i about z_b, translation a01_i along x_0i."""
+    c, s = np.cos(geom.base_angle[leg]), np.sin(geom.base_angle[leg])
+    a = geom.base_distance[leg]
+    return np.array([[c, -s, 0.0, a * c], [s, c, 0.0, a * s], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def leg_transform(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
+    """T_3i^b of eq. 2: the foot frame O_3i in the body frame for joint angles q = (th1, th2, th3)."""
+    th1, th2, th3 = q
+    c1, s1 = np.cos(th1), np.sin(th1)
+    c2, s2 = np.cos(th2), np.sin(th2)
+    c23, s23 = np.cos(th2 + th3), np.sin(th2 + th3)
+    reach = geom.femur * c2 + geom.tibia * c23
+    t30 = np.array([
+        [c1 * c23, -c1 * s23, s1, c1 * reach],
+        [s1 * c23, -s1 * s23, -c1, s1 * reach],
+        [s23, c23, 0.0, geom.femur * s2 + geom.tibia * s23],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+    return base_transform(geom, leg) @ t30
+
+
+@intrinsic
+def fused_multiply_add(typingctx, a, b, c):
+    """a * b + c with one rounding (compiled code only). OpenBLAS's kernels, which numpy's `@` and
+    `linalg.solve` run even on 3x3 matrices, accumulate their sums of products this way; compiled
+    code that does the same gives numpy's results bit for bit."""
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(double, [double] * 3), "llvm.fma.f64")
+        return builder.call(function, args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@njit(cache=True)
+def rows_times_matrix(points, matrix, out):
+    """out = points @ matrix for (n, 3) points and a 3x3 matrix, in numpy's order: row by row, each
+    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel). `out`
+    must be another array than `points`."""
+    for row in range(points.shape[0]):
+        for col in range(3):
+            total = points[row, 0] * matrix[0, col]
+            total = fused_multiply_add(points[row, 1], matrix[1, col], total)
+            out[row, col] = fused_multiply_add(points[row, 2], matrix[2, col], total)
+    return out
+
+
+@njit(cache=True)
+def matrix_times_vector(matrix, vector, out):
+    """out = matrix @ vector for a 3x3 matrix and a contiguous 3-vector, in numpy's order
+    (OpenBLAS's dgemv: the first two products summed first, then the third, fused)."""
+    for row in range(3):
+        first_two = fused_multiply_add(matrix[row, 0], vector[0], matrix[row, 1] * vector[1])
+        out[row] = fused_multiply_add(matrix[row, 2], vector[2], first_two)
+    return out
+
+
+def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
+    """(6, 3) foot positions p_i^b for the 18 joint angles q: eq. 2 for all legs at once."""
+    return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.base_cos, geom.base_sin,
+                                 geom.base_angle, geom.base_distance, geom.femur, geom.tibia)
+
+
+# Compiled: odometry, the estimators and the posture controller call this every tick or encoder
+# sample, and numpy's column_stack of six-element arrays cost ~10 us a call against ~1 us here.
+@njit(cache=True)
+def foot_positions_arrays(q, base_cos, base_sin, base_angle, base_distance, a2, a3):
+    """foot_positions on the geometry's arrays (compiled; callable from other kernels)."""
+    feet = np.empty((6, 3))
+    for leg in range(6):
+        th1, th2, th3 = q[3 * leg], q[3 * leg + 1], q[3 * leg + 2]
+        reach = a2 * math.cos(th2) + a3 * math.cos(th2 + th3)
+        angle = base_angle[leg] + th1
+        feet[leg, 0] = base_distance[leg] * base_cos[leg] + reach * math.cos(angle)
+        feet[leg, 1] = base_distance[leg] * base_sin[leg] + reach * math.sin(angle)
+        feet[leg, 2] = a2 * math.sin(th2) + a3 * math.sin(th2 + th3)
+    return feet
+
+
+class WorldFeet(NamedTuple):
+    """Feet and tibias of the whole robot in the world frame at one instant."""
+    centers: np.ndarray            # (6, 3) m, foot sphere centres
+    velocities: np.ndarray         # (6, 3) m/s, of the foot sphere centres
+    spins: np.ndarray              # (6, 3) rad/s, angular velocities of the tibias
+    tibia_rotations: np.ndarray    # (6, 3, 3) world_from_tibia
+    tibia_origins: np.ndarray      # (6, 3) m, joint-3 origins O_2i (the tibia link frames)
+
+
+def world_feet(geom: LegGeometry, rotation: np.ndarray, position: np.ndarray, angular_velocity: np.ndarray,
+               linear_velocity: np.ndarray, q: np.ndarray, dq: np.ndarray) -> WorldFeet:
+    """Eq. 2 and its time derivative for all legs, placed at the body pose (world_from_body
+    `rotation`, `position`) moving with the body's world-frame angular and linear velocity; joint
+    angles and rates `q`, `dq` (18,). What DART's per-body transform and velocity getters give,
+    in one compiled call instead of eighteen Python calls into DART."""
+    return WorldFeet(*world_feet_arrays(rotation, position, angular_velocity, linear_velocity, q, dq,
+                                  geom.base_angle, geom.base_distance, geom.femur, geom.tibia))
+
+
+@njit(cache=True)
+def world_feet_arrays(rotation, position, omega, velocity, q, dq, base_angle, base_distance, a2, a3):
+    centers, velocities, spins = np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 3))
+    rotations, origins = np.empty((6, 3, 3)), np.empty((6, 3))
+    local = np.empty((5, 3))    # body frame: foot, foot velocity, spin, tibia x, tibia y
+    world = np.empty((5, 3))    # the same rotated into the world
+    for leg in range(6):
+        th1, th2, th3 = q[3 * leg], q[3 * leg + 1], q[3 * leg + 2]
+        w1, w2, w23 = dq[3 * leg], dq[3 * leg + 1], dq[3 * leg + 1] + dq[3 * leg + 2]
+        c0, s0 = math.cos(base_angle[leg]), math.sin(base_angle[leg])
+        cp, sp = math.cos(base_angle[leg] + th1), math.sin(base_angle[leg] + th1)
+        c2, s2 = math.cos(th2), math.sin(th2)
+        c23, s23 = math.cos(th2 + th3), math.sin(th2 + th3)
+        reach, height = a2 * c2 + a3 * c23, a2 * s2 + a3 * s23
+        reach_rate, height_rate = -a2 * s2 * w2 - a3 * s23 * w23, a2 * c2 * w2 + a3 * c23 * w23
+        base_x, base_y = base_distance[leg] * c0, base_distance[leg] * s0
+        local[0, 0], local[0, 1], local[0, 2] = base_x + reach * cp, base_y + reach * sp, height
+        local[1, 0] = reach_rate * cp - reach * sp * w1
+        local[1, 1] = reach_rate * sp + reach * cp * w1
+        local[1, 2] = height_rate
+        local[2, 0], local[2, 1], local[2, 2] = w23 * sp, -w23 * cp, w1      # z0 w1 + z1 (w2 + w3)
+        local[3, 0], local[3, 1], local[3, 2] = cp * c23, sp * c23, s23
+        local[4, 0], local[4, 1], local[4, 2] = -cp * s23, -sp * s23, c23
+        for r in range(5):
+            for i in range(3):
+                world[r, i] = rotation[i, 0] * local[r, 0] + rotation[i, 1] * local[r, 1] + rotation[i, 2] * local[r, 2]
+        for i in range(3):
+            centers[leg, i] = world[0, i] + position[i]
+            origins[leg, i] = base_x * rotation[i, 0] + base_y * rotation[i, 1] + position[i] \
+                + a2 * (c2 * (cp * rotation[i, 0] + sp * rotation[i, 1]) + s2 * rotation[i, 2])
+            spins[leg, i] = omega[i] + world[2, i]
+            rotations[leg, i, 0], rotations[leg, i, 1] = world[3, i], world[4, i]
+            rotations[leg, i, 2] = sp * rotation[i, 0] - cp * rotation[i, 1]
+        arm = world[0]
+        velocities[leg, 0] = velocity[0] + omega[1] * arm[2] - omega[2] * arm[1] + world[1, 0]
+        velocities[leg, 1] = velocity[1] + omega[2] * arm[0] - omega[0] * arm[2] + world[1, 1]
+        velocities[leg, 2] = velocity[2] + omega[0] * arm[1] - omega[1] * arm[0] + world[1, 2]
+    return centers, velocities, spins, rotations, origins
+
+
+def foot_jacobian(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
+    """3x3 Jacobian d p_i^b / d (th1, th2, th3) of one leg."""
+    th1, th2, th3 = q
+    a2, a3 = geom.femur, geom.tibia
+    reach = a2 * np.cos(th2) + a3 * np.cos(th2 + th3)
+    d_reach = np.array([-a2 * np.sin(th2) - a3 * np.sin(th2 + th3), -a3 * np.sin(th2 + th3)])
+    d_height = np.array([a2 * np.cos(th2) + a3 * np.cos(th2 + th3), a3 * np.cos(th2 + th3)])
+    angle = geom.base_angle[leg] + th1
+    ca, sa = np.cos(angle), np.sin(angle)
+    return np.array([
+        [-reach * sa, d_reach[0] * ca, d_reach[1] * ca],
+        [reach * ca, d_reach[0] * sa, d_reach[1] * sa],
+        [0.0, d_height[0], d_height[1]],
+    ])
+
+
+REACHABLE, OUT_OF_REACH, PAST_LIMITS = 0, 1, 2     # status of one leg's solution
+LIMIT_TOLERANCE = 1e-12                             # rad, a joint this close past its limit is within it
+
+
+def inverse_kinematics(geom: LegGeometry, leg: int, target: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
+    """Joint angles (th1, th2, th3) that put foot `leg` at `target` (body frame).
+
+    elbow "up" keeps the knee above the hip-foot line (th3 < 0), the usual hexapod posture.
+    Raises UnreachableTarget when the point is out of reach or needs angles past the joint limits;
+    nothing is clamped silently.
+    """
+    target = np.asarray(target, dtype=float)
+    q = np.empty(3)
+    status = _solve_leg(target[0], target[1], target[2], geom.base_cos[leg], geom.base_sin[leg],
+                        geom.base_distance[leg], geom.femur, geom.tibia, geom.lower, geom.upper,
+                        elbow_sign(elbow), q)
+    if status == REACHABLE:
+        return q
+    raise UnreachableTarget(leg, target, _unreachable_reason(geom, leg, target, q, status))
+
+
+def inverse_kinematics_legs(geom: LegGeometry, targets: np.ndarray, fallback: np.ndarray | None = None,
+                            elbow: Elbow = "up") -> tuple[np.ndarray, np.ndarray]:
+    """All six legs in one compiled call: (18,) joint angles for (6, 3) foot targets and the (6,)
+    bool mask of the reachable legs. A leg out of reach gets its three angles from `fallback`
+    (18,), or NaN without one. The same angles, bit for bit, as `inverse_kinematics` leg by leg."""
+    fallback = np.full(18, np.nan) if fallback is None else np.asarray(fallback, dtype=float)
+    q, status = _solve_legs(np.asarray(targets, dtype=float), geom.base_cos, geom.base_sin, geom.base_distance,
+                            geom.femur, geom.tibia, geom.lower, geom.upper, elbow_sign(elbow), fallback)
+    return q, status == REACHABLE
+
+
+def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A controller's inverse kinematics, knee up: (18,) joint angles for (6, 3) foot targets, a leg
+    out of reach keeping its `last` angles, and whether every leg reached its target. The angles
+    of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
+    the mask's `all`)."""
+    return solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
+                              geom.lower, geom.upper, elbow_sign("up"), last)
+
+
+def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
+    """(18,) joint angles for (6, 3) foot targets; raises UnreachableTarget for the first bad leg."""
+    q, reachable = inverse_kinematics_legs(geom, targets, elbow=elbow)
+    if not reachable.all():
+        leg = int(np.argmin(reachable))
+        inverse_kinematics(geom, leg, targets[leg], elbow)     # raises with the reason
+    return q
+
+
+def elbow_sign(elbow: Elbow) -> float:
+    return -1.0 if elbow == "up" else 1.0
+
+
+def _unreachable_reason(geom: LegGeometry, leg: int, target: np.ndarray, q: np.ndarray, status: int) -> str:
+    a2, a3 = geom.femur, geom.tibia
+    if status == OUT_OF_REACH:
+        base = np.array([geom.base_distance[leg] * geom.base_cos[leg], geom.base_distance[leg] * geom.base_sin[leg], 0.0])
+        distance = np.linalg.norm(target - base)
+        return f"distance {distance:.4f} m outside [{abs(a2 - a3):.4f}, {a2 + a3:.4f}]"
+    outside = (q < geom.lower - LIMIT_TOLERANCE) | (q > geom.upper + LIMIT_TOLERANCE)
+    joint = int(np.argmax(outside))
+    return (f"joint {joint + 1} angle {np.degrees(q[joint]):.1f} deg outside "
+            f"[{np.degrees(geom.lower[joint]):.1f}, {np.degrees(geom.upper[joint]):.1f}]")
+
+
+# The closed form is compiled with numba: per leg it is a dozen scalar operations, which numpy
+# spends ~20 us on in call overhead; compiled, the six legs cost ~1 us.
+@njit(cache=True)
+def _solve_leg(x, y, z, c0, s0, a01, a2, a3, lower, upper, elbow_sign, out) -> int:
+    """One leg: writes (th1, th2, th3) into `out` and returns REACHABLE, or OUT_OF_REACH (out
+    untouched), or PAST_LIMITS (out: the first shoulder branch)."""
+    rx, ry = x - a01 * c0, y - a01 * s0
+    x0, y0 = c0 * rx + s0 * ry, -s0 * rx + c0 * ry
+    horizontal = math.hypot(x0, y0)
+    cos3 = (horizontal**2 + z**2 - a2**2 - a3**2) / (2.0 * a2 * a3)
+    if not -1.0 <= cos3 <= 1.0:
+        return OUT_OF_REACH
+    th3 = elbow_sign * math.acos(cos3)
+    heading = math.atan2(y0, x0) if horizontal > 1e-12 else 0.0
+    knee = math.atan2(a3 * math.sin(th3), a2 + a3 * math.cos(th3))
+    # Two shoulder branches: the leg reaching towards the foot, or turned half a turn and reaching
+    # back over the hip. The first within the joint limits wins.
+    for branch in range(2):
+        th1 = heading if branch == 0 else _wrap(heading + math.pi)
+        reach = horizontal if branch == 0 else -horizontal
+        th2 = _wrap(math.atan2(z, reach) - knee)
+        if branch == 0:
+            out[0], out[1], out[2] = th1, th2, th3
+        if _within(th1, lower[0], upper[0]) and _within(th2, lower[1], upper[1]) and _within(th3, lower[2], upper[2]):
+            out[0], out[1], out[2] = th1, th2, th3
+            return REACHABLE
+    return PAST_LIMITS
+
+
+@njit(cache=True)
+def _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, fallback):
+    q = fallback.copy()
+    status = np.empty(6, np.int64)
+    out = np.empty(3)
+    for leg in range(6):
+        status[leg] = _solve_leg(targets[leg, 0], targets[leg, 1], targets[leg, 2], c0[leg], s0[leg], a01[leg],
+                                 a2, a3, lower, upper, elbow_sign, out)
+        if status[leg] == REACHABLE:
+            q[3 * leg:3 * leg + 3] = out
+    return q, status
+
+
+@njit(cache=True)
+def solve_legs_or_last(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last):
+    """joint_targets_or_last on the geometry's arrays (compiled; callable from other kernels)."""
+    q, status = _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last)
+    return q, np.all(status == REACHABLE)
+
+
+@njit(cache=True)
+def _within(angle, low, high) -> bool:
+    return low - LIMIT_TOLERANCE <= angle <= high + LIMIT_TOLERANCE
+
+
+@njit(cache=True)
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def nominal_stance(geom: LegGeometry, stance_radius: float, stance_height: float, foot_radius: float) -> np.ndarray:
+    """(6, 3) foot-centre targets of the nominal stance: each foot `stance_radius` out along x_0i,
+    the body origin `stance_height` above flat ground."""
+    outward = np.column_stack([np.cos(geom.base_angle), np.sin(geom.base_angle), np.zeros(6)])
+    feet = geom.base_positions + stance_radius * outward
+    feet[:, 2] = -(stance_height - foot_radius)
+    return feet

@@ -1,0 +1,167 @@
+"""Per-run metrics, accumulated tick by tick from ground truth, written as JSON.
+
+Keys are floats in SI units except where the key says `_deg`; null where a metric does not apply.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from scipy.spatial.transform import Rotation
+
+from testbed.runtime.config import Config
+from testbed.runtime.recording import Tick
+from testbed.world.terrain import Terrain
+
+WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
+SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
+POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the first second and the start-up
+
+
+class RunMetrics:
+    """Accumulates the truth-side metrics of a run tick by tick; `summary` adds the estimator's."""
+
+    def __init__(self, config: Config, weight: float, terrain: "Terrain"):
+        self.config = config
+        self.weight = weight
+        self.terrain = terrain
+        self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
+        self.fell = False
+        self._normal_sum = 0.0
+        self._normal_count = 0
+        self.min_margin = np.inf
+        self.start_xy: np.ndarray | None = None
+        self.start_heading = 0.0
+        self._rows: list[tuple] = []      # per tick: t, quaternion, body position, feet, contact flags
+        self.estimates: list = []
+
+    def _columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Times (T,), quaternions (T, 4), body positions (T, 3), feet (T, 6, 3), contact flags (T, 6)."""
+        if not self._rows:
+            return np.empty(0), np.empty((0, 4)), np.empty((0, 3)), np.empty((0, 6, 3)), np.empty((0, 6), bool)
+        return tuple(np.array(column) for column in zip(*self._rows))
+
+    @property
+    def last_xy(self) -> np.ndarray:
+        """Body x, y at the latest tick (zeros before the first)."""
+        return self._rows[-1][2][:2].copy() if self._rows else np.zeros(2)
+
+    def add(self, tick: Tick) -> None:
+        truth = tick.truth
+        t = truth.t
+        if self.start_xy is None:
+            self.start_xy = truth.body_position[:2].copy()
+            self.start_heading = float(np.arctan2(truth.body_rotation[1, 0], truth.body_rotation[0, 0]))
+        if t >= self.window_start:
+            # Six numbers: Python's sum adds them in numpy's order, for a fifth of the cost.
+            self._normal_sum += sum(tick.contacts.normal_forces.tolist())
+            self._normal_count += 1
+        if t >= SETTLE_TIME and tick.stability_margin < self.min_margin:
+            self.min_margin = tick.stability_margin
+        # One tuple per tick rather than five appends: this runs at every physics step.
+        self._rows.append((t, tick.truth_quaternion, truth.body_position, truth.foot_positions, truth.foot_contact))
+        self.estimates.extend(tick.estimates)
+
+    def _mean_speed(self, distance: float, sim_time: float) -> float | None:
+        """Over the time the robot was commanded to walk: after the start-up (still, then the
+        calibration poses), ramp included."""
+        walking = sim_time - self.config.gait.startup_time
+        return distance / walking if walking > 0 and self.config.run.gait != "stand" else None
+
+    def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
+        ratio = self._normal_sum / self._normal_count / self.weight if self._normal_count else None
+        last_xy = self.last_xy
+        displacement = last_xy - (self.start_xy if self.start_xy is not None else last_xy)
+        heading = np.array([np.cos(self.start_heading), np.sin(self.start_heading)])
+        target = self.config.gait.target
+        metrics = {
+            "fell": self.fell,
+            "weight_support_ratio": ratio,
+            "distance_m": float(np.linalg.norm(displacement)),
+            "mean_speed_mps": self._mean_speed(float(np.linalg.norm(displacement)), sim_time),
+            "lateral_drift_m": float(abs(heading[0] * displacement[1] - heading[1] * displacement[0])),
+            "target_error_m": float(np.linalg.norm(last_xy - target)) if target else None,
+            "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
+            "ik_limited_ticks": ik_limited_ticks,
+            **self.posture_metrics(),
+            "realtime_factor": sim_time / wall_s if wall_s > 0 else None,
+            "sim_steps": int(round(sim_time / self.config.run.time_step)),
+            "sim_time_s": sim_time,
+            "wall_s": wall_s,
+        }
+        metrics.update(self.estimator_metrics())
+        return metrics
+
+    def posture_metrics(self) -> dict:
+        """True body tilt from level and body height above the terrain under the body centre, minus
+        the commanded height, after the first second and the start-up (whose calibration poses
+        tilt the body on purpose)."""
+        t, quaternions, positions, _, _ = self._columns()
+        keep = t >= max(POSTURE_SKIP, self.config.gait.startup_time)
+        if not keep.any():
+            return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
+        tilt = body_tilt_deg(quaternions[keep])
+        position = positions[keep]
+        height = position[:, 2] - self.terrain.height(position[:, :2])
+        error = height - self.config.robot.stance_height
+        return {"tilt_rms_deg": float(np.sqrt(np.mean(tilt ** 2))), "tilt_max_deg": float(tilt.max()),
+                "height_error_rms_m": float(np.sqrt(np.mean(error ** 2)))}
+
+    def estimator_metrics(self) -> dict:
+        return score_estimates(self.config, *self._columns(), self.estimates)
+
+
+def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:
+    """Angle between the body's z axis and the world's vertical, degrees, per (x, y, z, w) quaternion."""
+    body_z_up = Rotation.from_quat(quaternions).as_matrix()[:, 2, 2]
+    return np.degrees(np.arccos(np.clip(body_z_up, -1.0, 1.0)))
+
+
+def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,
+                    feet: np.ndarray, contact: np.ndarray, estimates: list) -> dict:
+    """Estimator metrics of a run from recorded numbers: the one function live runs and replays
+    both call, so a replay of the same estimates scores bit for bit the same. All None when there
+    is nothing to score: no estimator, no estimate, fewer than two truth steps, or a run shorter
+    than the skipped first second."""
+    from estimators.scoring import METRIC_KEYS, estimate_arrays, score, support_plane_truth
+    if config.run.estimator == "none" or not estimates or len(truth_t) < 2:
+        return {key: None for key in METRIC_KEYS}
+    rotations = Rotation.from_quat(truth_quaternion).as_matrix()
+    terrain_truth = support_plane_truth(truth_t, feet, contact, body_position, rotations, config.robot.foot_radius)
+    try:
+        return score(estimate_arrays(estimates), truth_t, rotations, terrain_truth)
+    except ValueError:      # shorter than the skipped first second
+        return {key: None for key in METRIC_KEYS}
+
+
+def _clean(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return _clean(value.item())
+    if isinstance(value, dict):
+        return {key: _clean(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(item) for item in value]
+    return value
+
+
+def write_metrics(path: str | Path, metrics: dict) -> None:
+    """Write atomically: a temporary file in the same folder, renamed over the target."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(handle, "w") as stream:
+            json.dump(_clean(metrics), stream, indent=2, sort_keys=True)
+            stream.write("\n")
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise

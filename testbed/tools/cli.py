@@ -1,0 +1,205 @@
+"""`testbed` command line: run | export-urdf (more subcommands arrive with their issues).
+
+Bad input gives one line on stderr and exit code 2, with nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any, Sequence
+
+from datasets import commands as dataset_commands
+from estimators.registry import ESTIMATORS
+from testbed.control.controller import CONTROLLERS
+from testbed.control.gait import GAITS
+from testbed.runtime import config as config_module
+from testbed.runtime.config import resolve_parts
+from testbed.world.terrain import TERRAINS
+from testbed.tools import bench_cli
+from testbed.tools import sweep_cli
+from testbed.tools import profile as profile_cli
+from testbed.model.errors import ConfigError, UserError
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse prints usage plus the error; we keep to one clear line and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UserError(f"{self.prog}: {message}")
+
+
+def _parse_assignment(text: str) -> dict[str, Any]:
+    """`section.key=value` (value in TOML syntax) -> nested override dict."""
+    if "=" not in text:
+        raise UserError(f"--set expects section.key=value, got '{text}'")
+    dotted, raw = text.split("=", 1)
+    keys = dotted.strip().split(".")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    nested: dict[str, Any] = value
+    for key in reversed(keys):
+        nested = {key: nested}
+    return nested
+
+
+def _deep_update(target: dict[str, Any], update: dict[str, Any]) -> None:
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(target.get(key), dict):
+            _deep_update(target[key], value)
+        else:
+            target[key] = value
+
+
+def _parse_target(text: str) -> list[float]:
+    try:
+        x, y = (float(part) for part in text.split(","))
+    except ValueError:
+        raise UserError(f"--target expects X,Y in metres, got '{text}'") from None
+    return [x, y]
+
+
+def _run_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    overrides: dict[str, Any] = {}
+    for assignment in args.set or []:
+        _deep_update(overrides, _parse_assignment(assignment))
+    run = {name: getattr(args, name) for name in ("terrain", "contact", "gait", "estimator", "controller",
+                                                  "duration", "seed") if getattr(args, name) is not None}
+    gait = {name: getattr(args, name) for name in ("speed", "lateral_speed", "turn_rate")
+            if getattr(args, name) is not None}
+    if args.target is not None:
+        gait["target"] = _parse_target(args.target)
+    moving = args.target is not None or any(gait.get(name) for name in ("speed", "lateral_speed", "turn_rate"))
+    if moving and "gait" not in run and "gait" not in overrides.get("run", {}) and args.config is None:
+        run["gait"] = "tripod"      # a walking command without a gait walks the paper's tripod, not stand
+    if run:
+        _deep_update(overrides, {"run": run})
+    if gait:
+        _deep_update(overrides, {"gait": gait})
+    if args.fault:
+        _deep_update(overrides, {"sensors": {"faults": list(args.fault)}})
+    return overrides
+
+
+def choices(registry) -> str:
+    """A registry's names for a help text, and the plugin form."""
+    return " | ".join(registry.names()) + " | MODULE:CLASS"
+
+
+def _add_run_parser(subparsers) -> None:
+    parser = subparsers.add_parser("run", help="simulate one scenario")
+    parser.add_argument("--terrain", help=f"{choices(TERRAINS)}")
+    parser.add_argument("--contact", help="compliant (hard finger) | dart (DART rigid contact)")
+    parser.add_argument("--gait", help=f"{choices(GAITS)} (default stand; tripod with --target)")
+    parser.add_argument("--speed", type=float, help="forward speed, m/s (cruise speed with --target)")
+    parser.add_argument("--lateral-speed", type=float, help="speed to the left, m/s")
+    parser.add_argument("--turn-rate", type=float, help="turning rate, rad/s counter-clockwise")
+    parser.add_argument("--target", help="X,Y: walk to this point of the ground (m) and stop")
+    parser.add_argument("--estimator", help=f"none | {choices(ESTIMATORS)}")
+    parser.add_argument("--controller", help=f"{choices(CONTROLLERS)} (none: gait and IK; posture: also keeps the "
+                                              "body level and at height, needs an estimator)")
+    parser.add_argument("--fault", action="append", metavar="SPEC",
+                        help="inject a sensor fault, e.g. imu.accel.spike@5s (see docs/sensors.md; repeatable)")
+    parser.add_argument("--duration", type=float, help="simulated seconds")
+    parser.add_argument("--seed", type=int, help="seed of every random number of the run")
+    parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
+    parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                        help="override one config value, e.g. terrain.slope_deg=-10 (repeatable)")
+    parser.add_argument("--metrics", type=Path, help="write the run's metrics as JSON here")
+    dataset_commands.add_run_arguments(parser)
+    parser.set_defaults(handler=_cmd_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from testbed.runtime.metrics import write_metrics
+    from testbed.runtime.runner import run
+
+    base = None if args.from_mcap is None else dataset_commands.config_from_mcap(args.from_mcap)
+    cfg = config_module.load(args.config, _run_overrides(args), base=base)
+    resolve_parts(cfg)
+    if args.metrics is not None and args.metrics.is_dir():
+        raise UserError(f"--metrics {args.metrics} is a directory")
+    recorder = dataset_commands.recorder_for(args, cfg)
+    outcome = run(cfg, recorder)
+    if args.metrics is not None:
+        write_metrics(args.metrics, outcome.metrics)
+    print(f"recorded {recorder.path}")
+    if not outcome.interrupted:
+        dataset_commands.after_run(args, recorder.path)
+    m = outcome.metrics
+    print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
+          f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
+          f"weight support {m['weight_support_ratio'] if m['weight_support_ratio'] is None else round(m['weight_support_ratio'], 4)}")
+    if outcome.interrupted:
+        print(f"testbed: {outcome.error}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if outcome.error:
+        print(f"testbed: {outcome.error}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+def _add_export_parser(subparsers) -> None:
+    parser = subparsers.add_parser("export-urdf", help="write the robot's URDF")
+    parser.add_argument("out", type=Path, help="output .urdf file")
+    parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
+    parser.set_defaults(handler=_cmd_export_urdf)
+
+
+def _cmd_export_urdf(args: argparse.Namespace) -> int:
+    from testbed.model.robot import build_urdf
+
+    cfg = config_module.load(args.config)
+    if args.out.is_dir():
+        raise UserError(f"{args.out} is a directory")
+    if not args.out.parent.exists():
+        raise UserError(f"folder {args.out.parent} does not exist")
+    args.out.write_text(build_urdf(cfg.robot), encoding="utf-8")
+    print(f"wrote {args.out}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="testbed", description="Hexapod control and sensor-fusion testbed")
+    subparsers = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    _add_run_parser(subparsers)
+    _add_export_parser(subparsers)
+    dataset_commands.add_subcommands(subparsers)
+    sweep_cli.add_subcommands(subparsers)
+    profile_cli.add_subcommands(subparsers)
+    bench_cli.add_subcommands(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    # A run started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C
+    # and `kill -INT` must still stop it cleanly (the recorder closes its file on the way out).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        args = build_parser().parse_args(argv)
+        return args.handler(args)
+    except ConfigError as error:
+        print(f"testbed: config error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except UserError as error:
+        print(f"testbed: {error}" if not str(error).startswith("testbed") else str(error), file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("testbed: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader of our output went away (`testbed info run.mcap | head`): stop quietly.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
