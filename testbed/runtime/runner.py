@@ -28,7 +28,7 @@ from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
 from testbed.world.stability import stance_support, stance_support_on_terrain
-from testbed.world.terrain import TERRAIN_STREAM, make_terrain
+from testbed.world.terrain import TERRAIN_STREAM, Terrain, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
 GC_ALLOCATIONS = 20_000  # container objects made between two collections of the youngest generation in a run
@@ -44,9 +44,12 @@ class RunOutcome:
     failed: bool = False            # a plugin (estimator, controller) failed during the run
 
 
-def build_simulation(config) -> Simulation:
-    streams = np.random.SeedSequence(config.run.seed).spawn(TERRAIN_STREAM + 1)
-    terrain = make_terrain(config.run.terrain, config, np.random.default_rng(streams[TERRAIN_STREAM]))
+def build_simulation(config, terrain: Terrain | str | None = None) -> Simulation:
+    """The world of `config`, on the terrain it names (or on `terrain`, a spec or an instance)."""
+    if not isinstance(terrain, Terrain):
+        streams = np.random.SeedSequence(config.run.seed).spawn(TERRAIN_STREAM + 1)
+        spec = config.run.terrain if terrain is None else terrain
+        terrain = make_terrain(spec, config, np.random.default_rng(streams[TERRAIN_STREAM]))
     return Simulation(config, terrain)
 
 
@@ -138,17 +141,17 @@ class Parts(NamedTuple):
     controller_spec: str
 
 
-def build_parts(config, estimator: Estimator | str | None = None,
-                controller: Controller | str | None = None) -> Parts:
-    """The simulation, the sensors, and the estimator and controller named in `config.run` (or
-    given here, as specs or instances), the controller started in the robot's start pose."""
+def build_parts(config, estimator: Estimator | str | None = None, controller: Controller | str | None = None,
+                terrain: Terrain | str | None = None) -> Parts:
+    """The simulation, the sensors, and the estimator, controller and terrain named in `config.run`
+    (or given here, as specs or instances), the controller started in the robot's start pose."""
     estimator_spec, estimator = _part(estimator, config.run.estimator, Estimator)
     controller_spec, controller = _part(controller, config.run.controller, Controller)
     if isinstance(estimator, str):
         estimator = None if estimator == NO_ESTIMATOR else make_estimator(estimator, config)
     if isinstance(controller, str):
         controller = CONTROLLERS.build(controller, config)
-    sim = build_simulation(config)
+    sim = build_simulation(config, terrain)
     sensors = SensorSuite.from_config(config)
     _guarded(controller.start, controller_spec, "start")(sim.standing_targets.copy())
     return Parts(sim, sensors, estimator, controller, estimator_spec, controller_spec)
@@ -219,13 +222,14 @@ def joint_command(t: float, joint_targets: np.ndarray) -> Command:
 
 
 def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
-        estimator: Estimator | str | None = None, controller: Controller | str | None = None) -> RunOutcome:
+        estimator: Estimator | str | None = None, controller: Controller | str | None = None,
+        terrain: Terrain | str | None = None) -> RunOutcome:
     """Simulate `config` for its duration; the metrics come back even when the run stops early.
-    `estimator` and `controller` replace the config's (a spec or an instance). `truth_attitude`
+    `estimator`, `controller` and `terrain` replace the config's (a spec or an instance). `truth_attitude`
     (tests and benchmarks only) feeds the true roll and pitch to the built-in posture loop in
     place of the estimator's."""
     recorder = recorder or NullRecorder()
-    parts = build_parts(config, estimator, controller)
+    parts = build_parts(config, estimator, controller, terrain)
     sim, sensors = parts.sim, parts.sensors
     onboard = Onboard(parts)
     pilot = parts.controller if onboard.builtin else None
