@@ -21,6 +21,7 @@ from datasets.reader import read_description
 from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
 from testbed.runtime.config import Config
 from testbed.model.errors import UserError
+from testbed.model.registry import file_stem
 
 EXIT_OK = 0
 RUNS_FOLDER = Path("runs")
@@ -67,7 +68,7 @@ def default_run_path(config: Config, folder: Path = RUNS_FOLDER) -> Path:
     otherwise pick the same name and rename each other's files away."""
     folder.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    stem = f"{stamp}_{config.run.terrain}_{config.run.estimator}"
+    stem = f"{stamp}_{file_stem(config.run.terrain)}_{file_stem(config.run.estimator)}"
     for n in itertools.count(1):
         path = folder / (f"{stem}.mcap" if n == 1 else f"{stem}-{n}.mcap")
         if path.exists():

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.metadata
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -120,7 +121,15 @@ class Registry:
         return PluginSource(spec, target, path, digest, distribution, version)
 
 
+def file_stem(spec: str) -> str:
+    """A spec as a part of a file name: `my_estimator:MyFilter` -> `my_estimator.MyFilter`."""
+    return "".join(ch if ch.isalnum() or ch in "-_." else "." for ch in spec)
+
+
 def import_plugin_module(module_name: str, kind: str, spec: str):
+    """The module of a plugin, importable from the current directory too (as `python -m` would)."""
+    if "" not in sys.path and os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as error:

@@ -19,8 +19,7 @@ from typing import Any
 import tomli_w
 
 from estimators.config import EstimatorsConfig
-from estimators.registry import ESTIMATORS, check_estimator_spec
-from estimators.registry import NONE as NO_ESTIMATOR
+from estimators.registry import check_estimator_spec
 from sensors.config import SensorsConfig
 from testbed.control.config import GaitConfig, PostureConfig
 from testbed.control.controller import CONTROLLERS
@@ -168,16 +167,6 @@ def _build(cls: type, data: dict[str, Any], path: str = "") -> Any:
     if missing:
         raise ConfigError(f"missing config key '{path}{missing[0]}'")
     return cls(**{name: _convert(data[name], hints[name], path + name) for name in names})
-
-
-def resolve_parts(config: Config) -> None:
-    """Import every part the config names (estimator, controller, terrain, gait), so that a missing
-    or malformed plugin is reported before anything runs or is written."""
-    if config.run.estimator != NO_ESTIMATOR:
-        ESTIMATORS.resolve(config.run.estimator)
-    CONTROLLERS.resolve(config.run.controller)
-    TERRAINS.resolve(config.run.terrain)
-    GAITS.resolve(config.run.gait)
 
 
 def default_dict() -> dict[str, Any]:

@@ -223,13 +223,14 @@ def joint_command(t: float, joint_targets: np.ndarray) -> Command:
 
 def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         estimator: Estimator | str | None = None, controller: Controller | str | None = None,
-        terrain: Terrain | str | None = None) -> RunOutcome:
+        terrain: Terrain | str | None = None, parts: Parts | None = None) -> RunOutcome:
     """Simulate `config` for its duration; the metrics come back even when the run stops early.
-    `estimator`, `controller` and `terrain` replace the config's (a spec or an instance). `truth_attitude`
+    `estimator`, `controller` and `terrain` replace the config's (a spec or an instance); `parts`,
+    already built by `build_parts`, replaces all of them. `truth_attitude`
     (tests and benchmarks only) feeds the true roll and pitch to the built-in posture loop in
     place of the estimator's."""
     recorder = recorder or NullRecorder()
-    parts = build_parts(config, estimator, controller, terrain)
+    parts = parts or build_parts(config, estimator, controller, terrain)
     sim, sensors = parts.sim, parts.sensors
     onboard = Onboard(parts)
     pilot = parts.controller if onboard.builtin else None

@@ -18,12 +18,11 @@ from estimators.registry import ESTIMATORS
 from testbed.control.controller import CONTROLLERS
 from testbed.control.gait import GAITS
 from testbed.runtime import config as config_module
-from testbed.runtime.config import resolve_parts
 from testbed.world.terrain import TERRAINS
 from testbed.tools import bench_cli
 from testbed.tools import sweep_cli
 from testbed.tools import profile as profile_cli
-from testbed.model.errors import ConfigError, UserError
+from testbed.model.errors import ConfigError, PluginError, UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -119,16 +118,16 @@ def _add_run_parser(subparsers) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from testbed.runtime.metrics import write_metrics
-    from testbed.runtime.runner import run
+    from testbed.runtime.metrics import write_metrics      # the simulation's imports, only for a run
+    from testbed.runtime.runner import build_parts, run
 
     base = None if args.from_mcap is None else dataset_commands.config_from_mcap(args.from_mcap)
     cfg = config_module.load(args.config, _run_overrides(args), base=base)
-    resolve_parts(cfg)
     if args.metrics is not None and args.metrics.is_dir():
         raise UserError(f"--metrics {args.metrics} is a directory")
+    parts = build_parts(cfg)        # a plugin that cannot be found or built stops here, before any file
     recorder = dataset_commands.recorder_for(args, cfg)
-    outcome = run(cfg, recorder)
+    outcome = run(cfg, recorder, parts=parts)
     if args.metrics is not None:
         write_metrics(args.metrics, outcome.metrics)
     print(f"recorded {recorder.path}")
@@ -186,6 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return args.handler(args)
+    except PluginError as error:
+        print(f"testbed: {error}", file=sys.stderr)
+        return EXIT_USAGE
     except ConfigError as error:
         print(f"testbed: config error: {error}", file=sys.stderr)
         return EXIT_USAGE

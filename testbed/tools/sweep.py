@@ -35,6 +35,7 @@ from itertools import product
 from pathlib import Path
 from typing import Any, Protocol
 
+from testbed.model.registry import file_stem
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
 from testbed.model.errors import UserError
@@ -59,7 +60,7 @@ class GridPoint:
 
     @property
     def name(self) -> str:
-        return f"{self.terrain}_seed{self.seed:03d}_{self.estimator}_{self.sensors}"
+        return f"{file_stem(self.terrain)}_seed{self.seed:03d}_{file_stem(self.estimator)}_{self.sensors}"
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from testbed.runtime import config as config_module
-from estimators.registry import resolve_estimator
+from estimators.registry import ESTIMATORS, resolve_estimator
+from testbed.control.gait import GAITS
 from testbed.tools import sweep
 from testbed.world.terrain import TERRAINS
 from testbed.model.errors import UserError
@@ -29,15 +30,15 @@ SCHEMES = ("tcp", "tls")
 def add_subcommands(subparsers) -> None:
     parser = subparsers.add_parser(
         "sweep", help="a grid of runs (terrains x seeds x estimators x sensor presets): one MCAP per run and an index")
-    parser.add_argument("--terrains", metavar="T1,T2", help="flat, slope, step, rough (default: the config's terrain)")
+    parser.add_argument("--terrains", metavar="T1,T2", help=f"{', '.join(TERRAINS.names())} or MODULE:CLASS (default: the config's terrain)")
     parser.add_argument("--seeds", type=int, default=1, metavar="N", help="N seeds per grid point (default 1)")
     parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="seeds run S ... S+N-1 (default 0)")
     parser.add_argument("--estimators", metavar="E1,E2",
-                        help="none, ekf, ukf, complementary, madgwick, mahony, vqf (default: the config's estimator)")
+                        help=f"none, {', '.join(ESTIMATORS.names())} or MODULE:CLASS (default: the config's estimator)")
     parser.add_argument("--sensors", default=DEFAULT_PRESET, metavar="P1,P2",
                         help=f"sensor presets: {', '.join(preset_names())} (default {DEFAULT_PRESET})")
     parser.add_argument("--duration", type=float, help="simulated seconds per run (default: the config's)")
-    parser.add_argument("--gait", help="stand | tripod | ripple | wave (default: the config's)")
+    parser.add_argument("--gait", help=f"{' | '.join(GAITS.names())} | MODULE:NAME (default: the config's)")
     parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml for every run")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR",
                         help="folder of the runs and the index; run the same command again to resume")
