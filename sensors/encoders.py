@@ -12,11 +12,14 @@ from numba import njit
 from sensors.config import EncoderConfig
 from sensors.faults import Fault, FaultInjector
 from sensors.samples import EncoderSample
+from sensors.sensor import Sensor, SensorContext
 from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
 from testbed.model.truth import NUM_JOINTS, Truth
 
 
-class Encoders:
+class Encoders(Sensor):
+    order = 2
+
     def __init__(self, config: EncoderConfig, run_seed: int, faults: tuple[Fault, ...]) -> None:
         self.config = config
         self.clock = SampleClock(config.rate)
@@ -28,6 +31,10 @@ class Encoders:
         self._faults = FaultInjector(faults, "encoder", NUM_JOINTS, np.full(NUM_JOINTS, math.pi))
         self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
+
+    @classmethod
+    def from_config(cls, config, context: SensorContext) -> "Encoders":
+        return cls(config.sensors.encoder, context.seed, context.faults)
     def corrupt(self, angles: np.ndarray) -> np.ndarray:
         return angles + self._noise.next() if self._noise else np.array(angles, dtype=float)
 

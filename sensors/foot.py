@@ -11,11 +11,14 @@ from numba import njit
 from sensors.config import FootConfig
 from sensors.faults import Fault, FaultInjector
 from sensors.samples import FootSample
+from sensors.sensor import Sensor, SensorContext
 from sensors.sampling import RowBuffer, SampleClock, gaussian_rows, measure, sensor_seed
 from testbed.model.truth import NUM_LEGS, Truth
 
 
-class FootSensors:
+class FootSensors(Sensor):
+    order = 3
+
     def __init__(self, config: FootConfig, run_seed: int, faults: tuple[Fault, ...]) -> None:
         self.config = config
         self.clock = SampleClock(config.rate)
@@ -25,6 +28,10 @@ class FootSensors:
         self._contact = np.zeros(NUM_LEGS, dtype=bool)
         self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
+
+    @classmethod
+    def from_config(cls, config, context: SensorContext) -> "FootSensors":
+        return cls(config.sensors.foot, context.seed, context.faults)
     def corrupt(self, forces: np.ndarray) -> np.ndarray:
         return forces + self._noise.next() if self._noise else np.array(forces, dtype=float)
 

@@ -13,11 +13,14 @@ from sensors.faults import Fault, FaultInjector
 from sensors.inertial_errors import InertialChannels, TriadErrors, corrupt_values, digitize_rows
 from sensors.motion import BodyMotion, MotionCache, body_motion_arrays
 from sensors.samples import ImuSample
+from sensors.sensor import Sensor, SensorContext
 from sensors.sampling import SampleClock, measure, sensor_seed
 from testbed.model.truth import Truth
 
 
-class Imu:
+class Imu(Sensor):
+    order = 0
+
     def __init__(self, config: ImuConfig, run_seed: int, faults: tuple[Fault, ...], motion: MotionCache) -> None:
         self.config = config
         self.clock = SampleClock(config.rate)
@@ -33,6 +36,10 @@ class Imu:
         channels = self.channels
         self._constants = np.concatenate([[motion.gravity], channels.lsb, channels.lowest, channels.highest])
 
+
+    @classmethod
+    def from_config(cls, config, context: SensorContext) -> "Imu":
+        return cls(config.sensors.imu, context.seed, context.faults, context.motion)
     def body_values(self, motion: BodyMotion) -> np.ndarray:
         """(6,) noise-free specific force at the IMU point and angular velocity, body frame."""
         values = np.empty(6)

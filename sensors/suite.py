@@ -10,45 +10,34 @@ step old; on the first call, the truth given), and carries t_k as its timestamp.
 from __future__ import annotations
 
 from operator import attrgetter
-from typing import TYPE_CHECKING, Protocol
+from types import SimpleNamespace
 
-from sensors.accel_array import AccelArray
 from sensors.config import SensorsConfig
-from sensors.encoders import Encoders
 from sensors.faults import TIME_EPS
-from sensors.foot import FootSensors
-from sensors.imu import Imu
 from sensors.motion import MotionCache
 from sensors.samples import Sample
-from sensors.sampling import SampleClock
+from sensors.sensor import SENSORS, Sensor, SensorContext
 from testbed.model.truth import Truth
 
 
-class Sensor(Protocol):
-    clock: SampleClock
-
-    def samples_at(self, truth: Truth, t: float) -> list[Sample]:
-        """The samples this sensor emits at time t, reading `truth`."""
-
-
 class SensorSuite:
-    def __init__(self, config: SensorsConfig, gravity: float, seed: int) -> None:
-        self.config = config
-        motion = MotionCache(gravity)
-        faults = config.parsed_faults
-        self.imu = Imu(config.imu, seed, faults, motion)
-        self.accel_array = (AccelArray(config.accel_array, config.imu.accel, seed, faults, motion)
-                            if len(config.accel_array.member_positions) else None)
-        self.encoders = Encoders(config.encoder, seed, faults)
-        self.foot = FootSensors(config.foot, seed, faults)
-        self._sensors: list[Sensor] = [s for s in (self.imu, self.accel_array, self.encoders, self.foot) if s is not None]
-        self._clocked = [(sensor, sensor.clock) for sensor in self._sensors]
+    def __init__(self, sensors: list[Sensor]) -> None:
+        self.sensors = sorted(sensors, key=attrgetter("order"))
+        self._clocked = [(sensor, sensor.clock) for sensor in self.sensors]
         self._previous: Truth | None = None
 
     @classmethod
     def from_config(cls, config) -> SensorSuite:
-        """The suite of a run: its sensors config, gravity and seed."""
-        return cls(config.sensors, config.run.gravity, config.run.seed)
+        """Every registered sensor that the run's config asks for."""
+        return cls.from_sections(config.sensors, config.run.gravity, config.run.seed)
+
+    @classmethod
+    def from_sections(cls, sensors: SensorsConfig, gravity: float, seed: int) -> SensorSuite:
+        """The suite from the `[sensors]` section, gravity (m/s^2) and the run's seed alone."""
+        config = SimpleNamespace(sensors=sensors, run=SimpleNamespace(gravity=gravity, seed=seed))
+        context = SensorContext(seed, sensors.parsed_faults, MotionCache(gravity))
+        built = (SENSORS.build(name, config, context) for name in SENSORS.names())
+        return cls([sensor for sensor in built if sensor is not None])
 
     def update(self, truth: Truth) -> list[Sample]:
         """Samples with t in (previous truth.t, truth.t], sorted by t (ties: IMU, array, encoders, feet)."""

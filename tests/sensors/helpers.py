@@ -46,7 +46,7 @@ def ideal_imu(noise: bool = True, **imu) -> dict:
 
 
 def run(config: SensorsConfig, truths, seed: int = 0) -> list[Sample]:
-    suite = SensorSuite(config, GRAVITY, seed)
+    suite = SensorSuite.from_sections(config, GRAVITY, seed)
     return [sample for state in truths for sample in suite.update(state)]
 
 

@@ -14,7 +14,7 @@ from tests.sensors.helpers import GRAVITY, flatten, ideal_imu, of_type, run, sen
 
 def test_accel_gyro_at_400_hz_with_a_1_khz_physics_step_emit_400_samples_per_second():
     config = sensors_config(imu={"rate": 400.0})
-    suite = SensorSuite(config, GRAVITY, 0)
+    suite = SensorSuite.from_sections(config, GRAVITY, 0)
     previous = None
     imu_times = []
     for state in steps(2.0):
