@@ -6,10 +6,12 @@
   them; every `flush_period` of simulated time they go to mcap's `Writer`, which closes the chunk,
   compresses it (zstd) and writes and flushes it to the file. A process killed outright therefore
   leaves a `.partial` file that is readable up to the last flush (`datasets.reader` recovers it).
+  All of it runs in the caller's thread: serialising and `add_message` hold the GIL, as does the
+  simulation, so a writer thread would only take turns with the run loop.
 - Ctrl-C cannot land inside a write (`datasets.signals`); `finish`, which the run loop calls
   after an interrupt or a divergence too, writes what is pending, the metrics and the summary.
 - A write that fails (a full disk) raises its error; the file is not written any further, and
-  `finish` raises it again and leaves the `.partial` file as it is.
+  `finish` raises `WriterFailed` and leaves the `.partial` file as it is.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every
   occurrence; the heavy truth (state, contacts, support polygon) and the commands every
   `truth_every` physics steps.
@@ -81,8 +83,9 @@ class DatasetWriter:
         self._writing(self._write, messages, flush)
 
     def close(self, metrics: dict, outcome: dict[str, str]) -> None:
-        """Write the metrics, the outcome and the summary, then give the file its final name. After
-        a failed write, close the file as it is and raise `WriterFailed`."""
+        """Write the metrics, the outcome and the summary, then give the file its final name. If a
+        write fails, now or before (`WriterFailed`), close the file as it is under its temporary
+        name and raise."""
         if self.closed:
             return
         self.closed = True
