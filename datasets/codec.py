@@ -16,6 +16,7 @@ from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf import descriptor_pb2
 from scipy.spatial.transform import Rotation
 
 from datasets import schemas
@@ -67,11 +68,16 @@ class MessageEncoder:
 
     def __init__(self, message_class: type):
         message = self._message = message_class()
-        fields = message_class.DESCRIPTOR.fields
+        # The fields as descriptor.proto states them (their label says which are repeated on every
+        # protobuf version, where FieldDescriptor's own attributes for it differ).
+        described = descriptor_pb2.DescriptorProto()
+        message_class.DESCRIPTOR.CopyToProto(described)
+        repeated = descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED
         # (name, the repeated field's container or None for a singular field)
-        self._fields = [(field.name, getattr(message, field.name) if field.is_repeated else None) for field in fields]
-        getter = attrgetter(*(field.name for field in fields))
-        self._values_of = getter if len(fields) > 1 else lambda item: (getter(item),)
+        self._fields = [(field.name, getattr(message, field.name) if field.label == repeated else None)
+                        for field in described.field]
+        getter = attrgetter(*(name for name, _ in self._fields))
+        self._values_of = getter if len(self._fields) > 1 else lambda item: (getter(item),)
 
     def encode_fields_of(self, item: Any) -> bytes:
         return self.encode(self._values_of(item))
