@@ -1,26 +1,25 @@
 """Conversion between the testbed's objects and the dataset's protobuf messages, both ways.
 
-Encoding is lossless: every float is written as a float64, so decoding gives back bit-identical
-arrays (NaN payloads included). `Encoder` writes the wire format directly (`datasets.wire`), the
-same bytes as protobuf's SerializeToString at a fraction of the cost.
+Encoding goes through the message classes (`datasets.schemas`, Foxglove's) and protobuf's
+`SerializeToString`; decoding through `FromString`. Every float is a float64, so decoding gives
+back bit-identical arrays (NaN payloads included).
 """
 
 from __future__ import annotations
 
-import struct
-from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from operator import attrgetter
+from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf import descriptor_pb2
 from scipy.spatial.transform import Rotation
 
-from datasets import schemas, wire
+from datasets import schemas
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from testbed.world.contact import FootContacts
@@ -35,11 +34,6 @@ NS_PER_S = 1_000_000_000
 def to_ns(t: float) -> int:
     """Simulation seconds to MCAP nanoseconds (log and publish time)."""
     return int(round(t * NS_PER_S))
-
-
-def to_ns_many(times: Sequence[float]) -> list[int]:
-    """`to_ns` of each time, in one numpy pass (the same product, rounded half to even like round)."""
-    return np.rint(np.asarray(times, dtype=float) * NS_PER_S).astype(np.int64).tolist()
 
 
 @dataclass(frozen=True)
@@ -57,162 +51,96 @@ class TerrainBoxes:
     quaternions: np.ndarray      # (N, 4) x, y, z, w, world_from_box
 
 
-def _field_key(message_class: type, name: str, wire_type: int) -> bytes:
-    return wire.key(message_class.DESCRIPTOR.fields_by_name[name].number, wire_type)
+def _flat(values: Any) -> list:
+    """An array of any shape (or a sequence) as the flat, row-major list a repeated field takes."""
+    return values.ravel().tolist() if type(values) is np.ndarray else np.ravel(values).tolist()
 
 
-# Foxglove's messages, written with datasets.wire like the `hexapod` ones (see there why).
-_TIMESTAMP = _field_key(PoseInFrame, "timestamp", wire.LENGTH_DELIMITED)
-_SECONDS, _NANOS = wire.key(1, wire.VARINT), wire.key(2, wire.VARINT)      # google.protobuf.Timestamp
-_POSE_FRAME = wire.string(_field_key(PoseInFrame, "frame_id", wire.LENGTH_DELIMITED), WORLD_FRAME)
-_POSE = _field_key(PoseInFrame, "pose", wire.LENGTH_DELIMITED)
-_POSITION, _ORIENTATION = wire.key(1, wire.LENGTH_DELIMITED), wire.key(2, wire.LENGTH_DELIMITED)   # foxglove.Pose
-_TRANSFORM_FRAMES = (wire.string(_field_key(FrameTransform, "parent_frame_id", wire.LENGTH_DELIMITED), WORLD_FRAME)
-                     + wire.string(_field_key(FrameTransform, "child_frame_id", wire.LENGTH_DELIMITED), BODY_FRAME))
-_TRANSLATION = _field_key(FrameTransform, "translation", wire.LENGTH_DELIMITED)
-_ROTATION = _field_key(FrameTransform, "rotation", wire.LENGTH_DELIMITED)
-# foxglove.Vector3 (x, y, z) and foxglove.Quaternion (x, y, z, w): doubles numbered 1 to 4.
-_X, _Y, _Z, _W = (number << 3 | wire.FIXED64 for number in (1, 2, 3, 4))
-_VECTOR3, _QUATERNION = struct.Struct("<BdBdBd").pack, struct.Struct("<BdBdBdBd").pack
+class MessageEncoder:
+    """Serialises messages of one protobuf class of scalar and repeated scalar fields (the
+    `hexapod` messages) from their field values, in the order the descriptor lists the fields:
+    `encode` takes the values in that order, `encode_fields_of` reads the attributes named as the
+    fields. Arrays of any shape go to repeated fields row-major; None leaves a field absent (an
+    unset proto3 `optional`, an empty repeated field).
+
+    One message object is filled again for each call, its repeated fields' containers looked up
+    once: cheaper than building a new message each time."""
+
+    def __init__(self, message_class: type):
+        message = self._message = message_class()
+        # The fields as descriptor.proto states them (their label says which are repeated on every
+        # protobuf version, where FieldDescriptor's own attributes for it differ).
+        described = descriptor_pb2.DescriptorProto()
+        message_class.DESCRIPTOR.CopyToProto(described)
+        repeated = descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED
+        # (name, the repeated field's container or None for a singular field)
+        self._fields = [(field.name, getattr(message, field.name) if field.label == repeated else None)
+                        for field in described.field]
+        getter = attrgetter(*(name for name, _ in self._fields))
+        self._values_of = getter if len(self._fields) > 1 else lambda item: (getter(item),)
+
+    def encode_fields_of(self, item: Any) -> bytes:
+        return self.encode(self._values_of(item))
+
+    def encode(self, values: Any) -> bytes:
+        message = self._message
+        for (name, repeated), value in zip(self._fields, values):
+            if repeated is not None:
+                repeated[:] = () if value is None else _flat(value)
+            elif value is None:
+                message.ClearField(name)
+            else:
+                setattr(message, name, value)
+        return message.SerializeToString()
+
+
 # The Contacts message: t, then the FootContacts arrays of its other fields' names.
 _CONTACT_ARRAYS = attrgetter(*(name for name, _, _ in schemas.MESSAGES["Contacts"][1:]))
 
 
-def _timestamp(t_ns: int) -> bytes:
-    seconds, nanos = divmod(t_ns, NS_PER_S)
-    return wire.length_delimited(_TIMESTAMP, wire.unsigned(_SECONDS, seconds) + _nanos(nanos))
-
-
-@lru_cache(maxsize=4096)
-def _nanos(nanos: int) -> bytes:
-    """The Timestamp's nanos field: recurring values (whole milliseconds at the physics rate), and
-    its varint of 3 to 5 bytes costs a Python loop."""
-    return wire.unsigned(_NANOS, nanos)
-
-
-# A foxglove.Vector3 and a foxglove.Quaternion, each as a length-delimited field, with every
-# component written: one structured-array row, the fields' keys and lengths filled in.
-_COMPONENT = np.dtype([("key", np.uint8), ("value", "<f8")])
-_PAIR = np.dtype([("first", np.uint8, (2,)), ("vector", _COMPONENT, (3,)), ("second", np.uint8, (2,)),
-                  ("quaternion", _COMPONENT, (4,))])
-
-
-def _vector_and_quaternion(first_key: bytes, vectors: np.ndarray, second_key: bytes,
-                           quaternions: np.ndarray) -> list[bytes]:
-    """Per row of `vectors` (N, 3) and `quaternions` (N, 4): the field `first_key` holding the
-    foxglove.Vector3, then `second_key` holding the foxglove.Quaternion. Vectorised over the rows
-    without a zero component (all fields written), one by one for the others."""
-    rows = np.empty(len(vectors), _PAIR)
-    rows["first"] = (first_key[0], 3 * _COMPONENT.itemsize)
-    rows["vector"]["key"] = (_X, _Y, _Z)
-    rows["vector"]["value"] = vectors
-    rows["second"] = (second_key[0], 4 * _COMPONENT.itemsize)
-    rows["quaternion"]["key"] = (_X, _Y, _Z, _W)
-    rows["quaternion"]["value"] = quaternions
-    data, size = rows.tobytes(), _PAIR.itemsize
-    complete = (vectors != 0.0).all(axis=1) & (quaternions != 0.0).all(axis=1)
-    return [data[index * size:(index + 1) * size] if whole else
-            (wire.length_delimited(first_key, _vector3(vector))
-             + wire.length_delimited(second_key, _quaternion(quaternion)))
-            for index, (whole, vector, quaternion) in enumerate(zip(complete.tolist(), vectors, quaternions))]
-
-
-def _vector3(values: np.ndarray) -> bytes:
-    x, y, z = values.tolist()
-    if x and y and z:       # none of them a zero of either sign: every field written, in one pack
-        return _VECTOR3(_X, x, _Y, y, _Z, z)
-    return _each_component((x, y, z))
-
-
-def _quaternion(values: np.ndarray) -> bytes:
-    x, y, z, w = values.tolist()
-    if x and y and z and w:
-        return _QUATERNION(_X, x, _Y, y, _Z, z, _W, w)
-    return _each_component((x, y, z, w))
-
-
-def _each_component(components: tuple[float, ...]) -> bytes:
-    return b"".join([wire.double(wire.varint(field_key), value)
-                     for field_key, value in zip((_X, _Y, _Z, _W), components)])
-
-
 class Encoder:
-    """Serialises objects into protobuf bytes (datasets.wire: protobuf's own bytes), one at a time
-    or in batches (the plural methods, vectorised over the batch, in the batch's order)."""
+    """Serialises the testbed's objects into the dataset's messages, one at a time."""
 
     def __init__(self) -> None:
-        layouts = {name: wire.Layout(fields) for name, fields in schemas.MESSAGES.items()}
-        self._samples = {ImuSample: (schemas.IMU.name, layouts["ImuSample"]),
-                         AccelSample: (schemas.ACCEL_ARRAY.name, layouts["AccelSample"]),
-                         EncoderSample: (schemas.ENCODERS.name, layouts["EncoderSample"]),
-                         FootSample: (schemas.FEET.name, layouts["FootSample"])}
-        self._estimate, self._feet, self._state = layouts["Estimate"], layouts["FeetTruth"], layouts["TruthState"]
-        self._contacts, self._support, self._command = layouts["Contacts"], layouts["Support"], layouts["Command"]
-
-    def _sample_layout(self, sample: Sample) -> tuple[str, wire.Layout]:
-        try:
-            return self._samples[type(sample)]
-        except KeyError:
-            raise TypeError(f"cannot record a {type(sample).__name__}") from None
+        encoders = {name: MessageEncoder(message_class) for name, message_class in schemas.CLASSES.items()}
+        self._samples = {ImuSample: (schemas.IMU.name, encoders["ImuSample"]),
+                         AccelSample: (schemas.ACCEL_ARRAY.name, encoders["AccelSample"]),
+                         EncoderSample: (schemas.ENCODERS.name, encoders["EncoderSample"]),
+                         FootSample: (schemas.FEET.name, encoders["FootSample"])}
+        self._estimate, self._feet, self._state = encoders["Estimate"], encoders["FeetTruth"], encoders["TruthState"]
+        self._contacts, self._support, self._command = encoders["Contacts"], encoders["Support"], encoders["Command"]
+        self._pose = PoseInFrame(frame_id=WORLD_FRAME)
+        self._pose_parts = (self._pose.timestamp, self._pose.pose.position, self._pose.pose.orientation)
+        self._transform = FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME)
+        self._transform_parts = (self._transform.timestamp, self._transform.translation, self._transform.rotation)
 
     def sample(self, sample: Sample) -> tuple[str, bytes]:
         """(topic name, message bytes) of one sensor sample."""
-        topic, layout = self._sample_layout(sample)
-        return topic, layout.encode_fields_of(sample)
-
-    def samples(self, samples: Sequence[Sample]) -> list[tuple[str, bytes]]:
-        by_type: dict[type, list[int]] = {}
-        for index, sample in enumerate(samples):
-            by_type.setdefault(type(sample), []).append(index)
-        encoded: list = [None] * len(samples)
-        for indices in by_type.values():
-            topic, layout = self._sample_layout(samples[indices[0]])
-            for index, data in zip(indices, layout.encode_fields_of_many([samples[index] for index in indices])):
-                encoded[index] = (topic, data)
-        return encoded
+        try:
+            topic, encoder = self._samples[type(sample)]
+        except KeyError:
+            raise TypeError(f"cannot record a {type(sample).__name__}") from None
+        return topic, encoder.encode_fields_of(sample)
 
     def estimate(self, estimate: Estimate) -> bytes:
         return self._estimate.encode_fields_of(estimate)
 
-    def estimates(self, estimates: Sequence[Estimate]) -> list[bytes]:
-        return self._estimate.encode_fields_of_many(estimates)
-
     def pose(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        return self.poses([t_ns], [position], [quaternion])[0]
-
-    def poses(self, times_ns: Sequence[int], positions: Sequence[np.ndarray],
-              quaternions: Sequence[np.ndarray]) -> list[bytes]:
-        bodies = _vector_and_quaternion(_POSITION, np.array(positions, dtype=float).reshape(-1, 3), _ORIENTATION,
-                                        np.array(quaternions, dtype=float).reshape(-1, 4))
-        return [_timestamp(t_ns) + _POSE_FRAME + wire.length_delimited(_POSE, body)
-                for t_ns, body in zip(times_ns, bodies)]
+        _set_stamped_pose(self._pose_parts, t_ns, position, quaternion)
+        return self._pose.SerializeToString()
 
     def feet(self, truth: Truth) -> bytes:
         return self._feet.encode_fields_of(truth)
 
-    def feet_of(self, truths: Sequence[Truth]) -> list[bytes]:
-        return self._feet.encode_fields_of_many(truths)
-
     def transform(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        return self.transforms([t_ns], [position], [quaternion])[0]
-
-    def transforms(self, times_ns: Sequence[int], positions: Sequence[np.ndarray],
-                   quaternions: Sequence[np.ndarray]) -> list[bytes]:
-        parts = _vector_and_quaternion(_TRANSLATION, np.array(positions, dtype=float).reshape(-1, 3), _ROTATION,
-                                       np.array(quaternions, dtype=float).reshape(-1, 4))
-        return [_timestamp(t_ns) + _TRANSFORM_FRAMES + part for t_ns, part in zip(times_ns, parts)]
+        _set_stamped_pose(self._transform_parts, t_ns, position, quaternion)
+        return self._transform.SerializeToString()
 
     def truth_state(self, truth: Truth) -> bytes:
         return self._state.encode_fields_of(truth)
 
-    def truth_states(self, truths: Sequence[Truth]) -> list[bytes]:
-        return self._state.encode_fields_of_many(truths)
-
     def contacts(self, t: float, contacts: FootContacts) -> bytes:
         return self._contacts.encode((t, *_CONTACT_ARRAYS(contacts)))
-
-    def contacts_of(self, times: Sequence[float], contacts: Sequence[FootContacts]) -> list[bytes]:
-        return self._contacts.encode_many([(t, *_CONTACT_ARRAYS(each)) for t, each in zip(times, contacts)])
 
     def support(self, t: float, polygon: np.ndarray, com_projection: np.ndarray, margin: float) -> bytes:
         return self._support.encode((t, polygon, com_projection, float(margin)))
@@ -220,8 +148,13 @@ class Encoder:
     def command(self, command: Command) -> bytes:
         return self._command.encode_fields_of(command)
 
-    def commands(self, commands: Sequence[Command]) -> list[bytes]:
-        return self._command.encode_fields_of_many(commands)
+
+def _set_stamped_pose(parts, t_ns: int, position: np.ndarray, orientation: np.ndarray) -> None:
+    """Fill a google.protobuf.Timestamp, a foxglove.Vector3 and a foxglove.Quaternion."""
+    stamp, vector, quaternion = parts
+    stamp.seconds, stamp.nanos = divmod(t_ns, NS_PER_S)
+    vector.x, vector.y, vector.z = _flat(position)
+    quaternion.x, quaternion.y, quaternion.z, quaternion.w = _flat(orientation)
 
 
 def terrain_message(centers: np.ndarray, half_extents: np.ndarray, rotations: np.ndarray, name: str) -> bytes:

@@ -2,18 +2,16 @@
 
 - The file is written as `<path>.partial` and renamed to `<path>` when it is closed, so a file
   with the final name is always complete.
-- `record` only keeps the tick (its arrays are new at every step, never modified afterwards);
-  every `flush_period` of simulated time the pending ticks are serialised, all in one loop, and go
-  to the writer, which closes a chunk and hands it to its writer thread (`datasets.mcap_batch`):
-  that thread compresses it, writes it and flushes it to disk while the run goes on.
-  A process killed outright therefore leaves a `.partial` file whose chunks are readable up to
-  the last flush, less the one chunk that the writer thread may still have been writing
-  (`datasets.reader` recovers them). A process whose main thread ends without `finish` (an
-  exception) still writes every chunk handed over.
+- `record` serialises the tick's messages at once (protobuf's `SerializeToString`) and keeps
+  them; every `flush_period` of simulated time they go to mcap's `Writer`, which closes the chunk,
+  compresses it (zstd) and writes and flushes it to the file. A process killed outright therefore
+  leaves a `.partial` file that is readable up to the last flush (`datasets.reader` recovers it).
+  All of it runs in the caller's thread: serialising and `add_message` hold the GIL, as does the
+  simulation, so a writer thread would only take turns with the run loop.
 - Ctrl-C cannot land inside a write (`datasets.signals`); `finish`, which the run loop calls
-  after an interrupt or a divergence too, writes what is pending, waits for the writer thread,
-  and writes the metrics and the summary. An error of the writer thread (a full disk) is raised
-  by the next flush or by `finish`.
+  after an interrupt or a divergence too, writes what is pending, the metrics and the summary.
+- A write that fails (a full disk) raises its error; the file is not written any further, and
+  `finish` raises `WriterFailed` and leaves the `.partial` file as it is.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every
   occurrence; the heavy truth (state, contacts, support polygon) and the commands every
   `truth_every` physics steps.
@@ -28,18 +26,16 @@ import platform
 import time
 from datetime import datetime, timezone
 from functools import cache
-from itertools import count
 from importlib import metadata as package_metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType
+from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from datasets import batch_encode, codec, schemas
-from datasets.mcap_batch import BatchWriter
+from datasets import codec, schemas
 from datasets.signals import sigint_deferred
 from testbed.runtime.recording import Tick
 
@@ -55,6 +51,12 @@ PROFILE = "hexapod-testbed"
 VERSIONED_PACKAGES = ("hexapod-testbed", "numpy", "scipy", "dartpy", "filterpy", "control", "AHRS", "vqf",
                       "mcap", "mcap-protobuf-support", "foxglove-schemas-protobuf", "protobuf", "rerun-sdk")
 
+Message = tuple[int, int, bytes, int]       # channel id, log time (ns, also the publish time), data, sequence
+
+
+class WriterFailed(Exception):
+    """A write to the dataset failed earlier; the file was left as it was then."""
+
 
 class DatasetWriter:
     """An MCAP file of the dataset format: every topic registered, the run description first,
@@ -65,14 +67,61 @@ class DatasetWriter:
         self.partial_path = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")
-        self._writer = BatchWriter(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD, background=True)
-        self._writer.start(profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
-        self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._failure: BaseException | None = None
         self.closed = False
+        self._writing(self._writer.start, profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
+        self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
 
     def describe_run(self, run_info: dict[str, str], config: "Config", urdf: str) -> None:
         """Metadata and attachments go before any message, so that even a truncated file can be
         replayed."""
+        self._writing(self._describe_run, run_info, config, urdf)
+
+    def write(self, messages: list[Message], flush: bool) -> None:
+        """Add the messages; `flush` closes the chunk and puts it on the file, flushed."""
+        self._writing(self._write, messages, flush)
+
+    def close(self, metrics: dict, outcome: dict[str, str]) -> None:
+        """Write the metrics, the outcome and the summary, then give the file its final name. If a
+        write fails, now or before (`WriterFailed`), close the file as it is under its temporary
+        name and raise."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writing(self._finish, metrics, outcome)
+            self._file.close()
+            os.replace(self.partial_path, self.path)
+        finally:
+            if not self._file.closed:
+                self._close_quietly()
+
+    def abandon(self) -> None:
+        """Close without a summary and delete the temporary file (nothing worth keeping was written)."""
+        self.closed = True
+        self._close_quietly()
+        self.partial_path.unlink(missing_ok=True)
+
+    def _close_quietly(self) -> None:
+        """Close the file after an error, which already says what went wrong."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+    def _writing(self, write, *args, **kwargs) -> None:
+        """Run one write, safe from Ctrl-C; the first error stops every later write."""
+        if self._failure is not None:
+            raise WriterFailed(f"{self.partial_path}: an earlier write failed ({self._failure})") from self._failure
+        with sigint_deferred():
+            try:
+                write(*args, **kwargs)
+            except Exception as error:
+                self._failure = error
+                raise
+
+    def _describe_run(self, run_info: dict[str, str], config: "Config", urdf: str) -> None:
         writer = self._writer
         writer.add_metadata("run", {"format_version": schemas.FORMAT_VERSION, **run_info})
         writer.add_metadata("config", {"json": json.dumps(config.to_dict(), sort_keys=True)})
@@ -81,58 +130,17 @@ class DatasetWriter:
         writer.add_attachment(created, 0, "config.toml", "application/toml", config.to_toml().encode())
         writer.add_attachment(created, 0, "robot.urdf", "application/xml", urdf.encode())
 
-    def add(self, topic: str, log_ns: int, data: bytes, sequence: int = 0) -> None:
-        self._writer.add_message(self.channels[topic], log_ns, data, log_ns, sequence)
+    def _write(self, messages: list[Message], flush: bool) -> None:
+        add = self._writer.add_message
+        for channel, log_ns, data, sequence in messages:
+            add(channel, log_ns, data, log_ns, sequence)
+        if flush:
+            self._writer.flush()
 
-    def add_many(self, messages: list[tuple[int, int, bytes, int]], flush: bool) -> None:
-        """(channel id, log ns, data, sequence) messages; `flush` closes the chunk and hands it to
-        the writer thread, which writes it and flushes the file."""
-        with sigint_deferred():
-            self._writer.add_messages(messages)
-            if flush:
-                self._writer.flush()
-
-    def add_batch(self, batch: batch_encode.Batch, flush: bool) -> None:
-        """Message records laid out by `batch_encode`; `flush` as in `add_many`."""
-        with sigint_deferred():
-            self._writer.add_records(*batch)
-            if flush:
-                self._writer.flush()
-
-    def wait(self) -> None:
-        """Return when every chunk handed to the writer thread is on disk (flushed)."""
-        with sigint_deferred():
-            self._writer.wait()
-
-    def close(self, metrics: dict, outcome: dict[str, str]) -> None:
-        """Write the metrics, the outcome and the summary, then give the file its final name."""
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            with sigint_deferred():
-                self._writer.add_metadata("metrics", {"json": json.dumps(_json_safe(metrics), sort_keys=True)})
-                self._writer.add_metadata("outcome", outcome)
-                self._writer.finish()
-                self._file.close()
-                os.replace(self.partial_path, self.path)
-        finally:
-            if not self._file.closed:
-                self._close_file()
-
-    def abandon(self) -> None:
-        """Close without a summary and delete the temporary file (nothing worth keeping was written)."""
-        self.closed = True
-        self._close_file()
-        self.partial_path.unlink(missing_ok=True)
-
-    def _close_file(self) -> None:
-        """Close the file after an error: once the writer thread has written what it was given
-        (its own error, if any, is not the one to tell)."""
-        try:
-            self._writer.stop()
-        finally:
-            self._file.close()
+    def _finish(self, metrics: dict, outcome: dict[str, str]) -> None:
+        self._writer.add_metadata("metrics", {"json": json.dumps(_json_safe(metrics), sort_keys=True)})
+        self._writer.add_metadata("outcome", outcome)
+        self._writer.finish()
 
     def _register(self, topic: schemas.Topic) -> int:
         descriptor_set = build_file_descriptor_set(topic.message_class).SerializeToString()
@@ -152,10 +160,9 @@ class McapRecorder:
         self._dataset: DatasetWriter | None = None
         self._encoder = codec.Encoder()
         self._channels: dict[str, int] = {}
-        self._channel_of = np.zeros(0, np.int64)     # batch_encode's channel of each layout
-        self._pending: list[tuple] = []          # recorded, not yet encoded and written: _Step's fields
+        self._pending: list[Message] = []       # serialised, not yet written
         self._ticks = 0
-        self._samples = 0
+        self._samples = 0               # sensor samples so far: the next one's sequence number
         self._every = 1
         self._next_flush_ns = 0
         self._last_t = 0.0
@@ -171,23 +178,21 @@ class McapRecorder:
         self._every = truth_every(config.run.time_step, self.truth_rate)
         self._dataset = DatasetWriter(self.path)
         self._channels = self._dataset.channels
-        self._channel_of = batch_encode.channels_of(self._channels)
         self._dataset.describe_run(run_description(config, self._every, self.truth_rate), config, urdf)
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
-        self._dataset.add_many([(self._channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
+        self._dataset.write([(self._channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
         self._next_flush_ns = codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        truth = tick.truth
-        t = truth.t
-        ticks = self._ticks
-        # a _Step, as a plain tuple (a third of the cost)
-        self._pending.append((t, truth.body_position, tick.truth_quaternion, truth.foot_positions, truth.foot_contact,
-                              tick.samples, tick.estimates, None if ticks % self._every else tick))
-        self._ticks = ticks + 1
+        t = tick.truth.t
+        messages = self._messages(tick, self._ticks % self._every == 0)
+        # Added whole or not at all: a Ctrl-C while serialising drops only this tick.
+        self._pending += messages
+        self._samples += len(tick.samples)
+        self._ticks += 1
         self._last_t = t
         t_ns = codec.to_ns(t)
         if t_ns >= self._next_flush_ns:
@@ -209,91 +214,41 @@ class McapRecorder:
 
     # --- internals ----------------------------------------------------------------------------
 
-    def _write_pending(self, flush: bool) -> None:
-        """Encode what was recorded since the last write (`batch_encode`'s compiled layout, or the
-        Python encoder's messages) and write it. A Ctrl-C while encoding
-        leaves it pending for `finish`; from the moment it is handed over to the writer it waits
-        until it is written (the encoding holds numpy calls long enough for a signal to come due
-        right after it)."""
-        steps = self._pending
-        batch = batch_encode.lay_out(steps, self._channel_of, self._samples)
-        messages = self._messages([_Step._make(step) for step in steps]) if batch is None else None
-        with sigint_deferred():
-            self._samples += sum([len(step[_SAMPLES]) for step in steps])
-            steps.clear()
-            if batch is not None:
-                self._dataset.add_batch(batch, flush)
-            else:
-                self._dataset.add_many(messages, flush)
-
-    def _messages(self, steps: list[_Step]) -> list[tuple[int, int, bytes, int]]:
-        """(channel, log ns, data, sequence) of the steps, step by step: the samples, the estimates,
-        the pose, the feet and, where the step keeps its tick, the heavy truth. Each topic's
-        messages are encoded in one batch (the encoder vectorises it), then laid out in that order.
-        The Python encoder's path: for the values that `batch_encode` does not take, and its
-        reference in tests/datasets/test_batch_encode.py."""
-        channels, encoder = self._channels, self._encoder
-        samples = [sample for step in steps for sample in step.samples]
-        estimates = [estimate for step in steps for estimate in step.estimates]
-        truth_ns = codec.to_ns_many([step.t for step in steps])
-        sample_messages = [(channels[topic], t_ns, data, sequence) for (topic, data), t_ns, sequence in zip(
-            encoder.samples(samples), codec.to_ns_many([sample.t for sample in samples]), count(self._samples))]
-        estimate_channel, pose_channel, feet_channel = (channels[topic.name] for topic in
-                                                        (schemas.ESTIMATE, schemas.TRUTH_POSE, schemas.TRUTH_FEET))
-        estimate_messages = [(estimate_channel, t_ns, data, 0) for data, t_ns in zip(
-            encoder.estimates(estimates), codec.to_ns_many([estimate.t for estimate in estimates]))]
-        poses = [(pose_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.poses(
-            truth_ns, [step.body_position for step in steps], [step.quaternion for step in steps]))]
-        feet = [(feet_channel, t_ns, data, 0) for t_ns, data in zip(truth_ns, encoder.feet_of(steps))]
-        heavy = [(step.tick, t_ns) for step, t_ns in zip(steps, truth_ns) if step.tick is not None]
-        heavy_messages = self._heavy_truth([tick for tick, _ in heavy], [t_ns for _, t_ns in heavy])
-        messages: list[tuple[int, int, bytes, int]] = []
-        next_sample = next_estimate = 0
-        for index, step in enumerate(steps):
-            last_sample, last_estimate = next_sample + len(step.samples), next_estimate + len(step.estimates)
-            messages += sample_messages[next_sample:last_sample]
-            messages += estimate_messages[next_estimate:last_estimate]
-            messages += (poses[index], feet[index])
-            if step.tick is not None:
-                messages += next(heavy_messages)
-            next_sample, next_estimate = last_sample, last_estimate
+    def _messages(self, tick: Tick, heavy: bool) -> list[Message]:
+        """The tick's messages in file order: its samples (numbered on from the samples before
+        them), estimates, pose and feet, then with `heavy` its transform, state, contacts, support
+        and command."""
+        channels, encoder, to_ns = self._channels, self._encoder, codec.to_ns
+        truth = tick.truth
+        t_ns = to_ns(truth.t)
+        messages: list[Message] = []
+        sequence = self._samples
+        for sample in tick.samples:
+            topic, data = encoder.sample(sample)
+            messages.append((channels[topic], to_ns(sample.t), data, sequence))
+            sequence += 1
+        estimate_channel = channels[schemas.ESTIMATE.name]
+        for estimate in tick.estimates:
+            messages.append((estimate_channel, to_ns(estimate.t), encoder.estimate(estimate), 0))
+        messages += ((channels[schemas.TRUTH_POSE.name], t_ns,
+                      encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0),
+                     (channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
+        if heavy:
+            command = tick.command
+            support = encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
+            messages += ((channels[schemas.TF.name], t_ns,
+                          encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0),
+                         (channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0),
+                         (channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0),
+                         (channels[schemas.TRUTH_SUPPORT.name], t_ns, support, 0),
+                         (channels[schemas.COMMAND.name], to_ns(command.t), encoder.command(command), 0))
         return messages
 
-    def _heavy_truth(self, ticks: list[Tick], truth_ns: list[int]):
-        """Per tick, the (channel, log ns, data, sequence) of its transform, state, contacts, support
-        and command."""
-        channels, encoder = self._channels, self._encoder
-        truths = [tick.truth for tick in ticks]
-        commands = [tick.command for tick in ticks]
-        transforms = encoder.transforms(truth_ns, [truth.body_position for truth in truths],
-                                        [tick.truth_quaternion for tick in ticks])
-        supports = [encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
-                    for truth, tick in zip(truths, ticks)]
-        columns = zip(transforms, encoder.truth_states(truths),
-                      encoder.contacts_of([truth.t for truth in truths], [tick.contacts for tick in ticks]), supports,
-                      encoder.commands(commands), truth_ns, codec.to_ns_many([command.t for command in commands]))
-        tf, state, contacts, support, command = (channels[topic.name] for topic in (
-            schemas.TF, schemas.TRUTH_STATE, schemas.TRUTH_CONTACTS, schemas.TRUTH_SUPPORT, schemas.COMMAND))
-        for transform, state_data, contacts_data, support_data, command_data, t_ns, command_ns in columns:
-            yield ((tf, t_ns, transform, 0), (state, t_ns, state_data, 0), (contacts, t_ns, contacts_data, 0),
-                   (support, t_ns, support_data, 0), (command, command_ns, command_data, 0))
-
-
-class _Step(NamedTuple):
-    """What the messages of every tick need, kept until the next write in place of the tick, which
-    is kept only every `truth_every` ticks, for its heavy truth: the other ticks' objects are freed
-    at once, while still in the processor's caches (freeing 500 ticks at each write cost ~6 us a tick)."""
-    t: float
-    body_position: np.ndarray
-    quaternion: np.ndarray
-    foot_positions: np.ndarray
-    foot_contact: np.ndarray
-    samples: list
-    estimates: list
-    tick: Tick | None
-
-
-_SAMPLES = _Step._fields.index("samples")     # where a pending step (a plain tuple) holds its samples
+    def _write_pending(self, flush: bool) -> None:
+        """Hand what is pending to the writer; a Ctrl-C meanwhile waits until it is written."""
+        with sigint_deferred():
+            pending, self._pending = self._pending, []
+            self._dataset.write(pending, flush)
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

@@ -64,8 +64,8 @@ def write_replayed(recording: Recording, out: Path, config: Config, estimates: l
     dataset = DatasetWriter(out)
     try:
         dataset.describe_run(run_info, config, recording.urdf() or "")
-        dataset.add_many([(dataset.channels[topic], log_ns, data, sequence)
-                          for log_ns, sequence, topic, data in messages if topic in dataset.channels], flush=False)
+        dataset.write([(dataset.channels[topic], log_ns, data, sequence)
+                       for log_ns, sequence, topic, data in messages if topic in dataset.channels], flush=False)
         dataset.close(metrics, recording.outcome())
     except BaseException:
         if not dataset.closed:

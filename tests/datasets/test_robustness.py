@@ -116,35 +116,33 @@ def test_an_unknown_estimator_is_a_user_error(ekf_run):
         replay(path, "kalman")
 
 
-def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly(tmp_path):
+def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly(tmp_path, monkeypatch):
     config = synthetic_config("complementary")
     ticks = list(generate_ticks(config, 1.2))
     recorder = McapRecorder(tmp_path / "run.mcap")
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    writer = recorder._dataset._writer
-    original_add = writer.add_records
-    original_finalize = writer._Writer__finalize_chunk
     calls = []
+    add_message, flush = Writer.add_message, Writer.flush
 
-    def add_then_interrupt(*batch):
+    def add_then_interrupt(writer, *args, **kwargs):
         calls.append("add")
-        if len(calls) == 1:
-            os.kill(os.getpid(), signal.SIGINT)     # lands between the batch's records and its chunk
-        original_add(*batch)
+        if len(calls) == 10:
+            os.kill(os.getpid(), signal.SIGINT)     # lands between two messages of the flush at 0.5 s
+        add_message(writer, *args, **kwargs)
 
-    def finalize(*args):
-        calls.append("chunk")
-        original_finalize(*args)
+    def flush_and_note(writer):
+        flush(writer)
+        calls.append("flush")
 
-    writer.add_records = add_then_interrupt
-    writer._Writer__finalize_chunk = finalize
+    monkeypatch.setattr(Writer, "add_message", add_then_interrupt)
+    monkeypatch.setattr(Writer, "flush", flush_and_note)
     recorded = 0
     with pytest.raises(KeyboardInterrupt):
         for tick in ticks:
             recorded += 1
             recorder.record(tick)
-    assert calls == ["add", "chunk"]        # the batch went on to its chunk's hand-over
+    assert calls.count("add") > 10 and calls[-1] == "flush"      # the flush went on to its end
     recorder.finish({"interrupted": True}, "interrupted")
     recording = read_recording(recorder.path)
     assert recording.truncated is None and recording.metrics() == {"interrupted": True}
@@ -164,58 +162,66 @@ RECORDING_RUN = textwrap.dedent("""
     for tick in generate_ticks(config, 1.7):
         recorder.record(tick)
 """)
-KILLED_RUN = RECORDING_RUN + textwrap.dedent("""
-    if sys.argv[2] == "wait":
-        recorder._dataset.wait()        # the writer thread has put the last flush's chunk on disk
-    os.kill(os.getpid(), 9)
-""")
 
 
-@pytest.mark.parametrize("writer", ["wait", "busy"])
-def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path, writer):
-    """Flushed every 0.5 s of simulated time: everything up to t = 1.5 s is on disk once the writer
-    thread has written the chunk of the flush at 1.5 s; killed at any moment, everything up to the
-    flush before it (handing the next chunk over waits for that one)."""
+def run_child(script: str, path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", script, str(path)], cwd=os.getcwd(), timeout=120,
+                          capture_output=True, text=True)
+
+
+def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path):
     path = tmp_path / "killed.mcap"
-    result = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path), writer], cwd=os.getcwd(), timeout=120)
-    assert result.returncode == -9
+    result = run_child(RECORDING_RUN + "os.kill(os.getpid(), 9)\n", path)
+    assert result.returncode == -9, result.stderr
     partial = path.with_name(path.name + ".partial")
     assert partial.exists() and not path.exists()
     recording = read_recording(partial)
     assert recording.truncated is not None
-    assert (1.5 if writer == "wait" else 1.0) <= recording.duration_s() < 1.7
+    assert 1.5 <= recording.duration_s() < 1.7
     assert replay(partial, "complementary").metrics["roll_rmse_deg"] is not None
 
 
-EXCEPTION_RUN = RECORDING_RUN + textwrap.dedent("""
-    raise RuntimeError("the run loop failed")      # no finish: the writer thread still writes its chunk
-""")
-
-
-def test_a_run_that_dies_of_an_exception_still_writes_every_flushed_chunk(tmp_path):
+def test_a_run_that_dies_of_an_exception_keeps_every_flushed_chunk(tmp_path):
     path = tmp_path / "died.mcap"
-    result = subprocess.run([sys.executable, "-c", EXCEPTION_RUN, str(path)], cwd=os.getcwd(), timeout=120,
-                            capture_output=True, text=True)
+    result = run_child(RECORDING_RUN + "raise RuntimeError('the run loop failed')\n", path)
     assert result.returncode == 1 and "the run loop failed" in result.stderr
     recording = read_recording(path.with_name(path.name + ".partial"))
     assert 1.5 <= recording.duration_s() < 1.7
 
 
-def test_an_error_of_the_writer_thread_is_raised_by_the_next_flush_and_leaves_the_partial_file(tmp_path, monkeypatch):
+# A child process whose file may not grow past what it holds after the flush at 0.5 s (a full
+# disk): the flush at 1.0 s fails, and so does `finish`.
+FULL_DISK_RUN = textwrap.dedent("""
+    import resource, sys
+    from datasets.recorder import McapRecorder, WriterFailed
+    from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
     config = synthetic_config("complementary")
-    recorder = McapRecorder(tmp_path / "full.mcap")
+    recorder = McapRecorder(sys.argv[1])
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    writer = recorder._dataset._writer
-
-    def disk_full(chunks):
-        raise OSError(28, "No space left on device")
-
-    monkeypatch.setattr(writer, "_write_chunks", disk_full)
-    with pytest.raises(OSError, match="No space left"):
-        for tick in generate_ticks(config, 1.2):      # flushes at 0.5 s (fails on the thread), then 1.0 s
+    try:
+        for tick in generate_ticks(config, 1.2):
             recorder.record(tick)
-    with pytest.raises(OSError, match="No space left"):
+            if tick.truth.t == 0.5:
+                size = recorder.partial_path.stat().st_size
+                resource.setrlimit(resource.RLIMIT_FSIZE, (size + 1000, size + 1000))
+    except OSError as error:
+        print("record:", error.strerror, tick.truth.t)
+    try:
         recorder.finish({}, None)
-    assert recorder.partial_path.exists() and not recorder.path.exists()
-    assert recorder._dataset._file.closed
+    except WriterFailed as error:
+        print("finish:", error)
+""")
+
+
+def test_a_failed_write_is_raised_and_leaves_the_partial_file(tmp_path):
+    path = tmp_path / "full.mcap"
+    result = run_child(FULL_DISK_RUN, path)
+    assert result.returncode == 0, result.stderr
+    record_line, finish_line = result.stdout.splitlines()
+    assert record_line == "record: File too large 1.0"
+    assert finish_line.startswith("finish: ") and "an earlier write failed (" in finish_line
+    partial = path.with_name(path.name + ".partial")
+    assert partial.exists() and not path.exists()
+    recording = read_recording(partial)
+    assert recording.truncated is not None and 0.5 <= recording.duration_s() < 1.0
