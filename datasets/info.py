@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from datasets.reader import Recording, read_recording
 
+PACKAGE = "hexapod-testbed"
 METRIC_ORDER = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
                 "anees_tilt", "fell", "weight_support_ratio", "min_stability_margin_m", "distance_m",
                 "realtime_factor", "sim_time_s", "wall_s")
@@ -26,6 +28,7 @@ def _header(recording: Recording) -> list[str]:
         lines.append(f"terrain {run.get('terrain', '?')}, estimator {run.get('estimator', '?')}, "
                      f"gait {run.get('gait', '?')}, seed {run.get('seed', '?')}, "
                      f"configured duration {run.get('duration_s', '?')} s, recorded {run.get('created_utc', '?')}")
+        lines += _plugins(run.get("parts"))
     else:
         lines.append("no testbed run description (not written by testbed run)")
     per_second = f", {size / duration / 1000:.0f} kB per simulated second" if duration > 0 else ""
@@ -33,6 +36,22 @@ def _header(recording: Recording) -> list[str]:
     error = recording.outcome().get("error")
     if error:
         lines.append(f"run stopped early: {error}")
+    return lines
+
+
+def _plugins(parts_json: str | None) -> list[str]:
+    """One line per part that did not come from this package: its spec, file and hash, package."""
+    try:
+        parts = json.loads(parts_json) if parts_json else {}
+    except json.JSONDecodeError:
+        return ["parts: unreadable"]
+    lines = []
+    for kind, source in sorted(parts.items()) if isinstance(parts, dict) else ():
+        if not isinstance(source, dict) or source.get("distribution") == PACKAGE:
+            continue
+        origin = source.get("distribution") and f"{source['distribution']} {source.get('version')}"
+        digest = (source.get("module_sha256") or "")[:12]
+        lines.append(f"plugin {kind}: {source.get('spec')} ({origin or source.get('module_file')}, sha256 {digest})")
     return lines
 
 

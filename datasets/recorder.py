@@ -37,6 +37,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from datasets import codec, schemas
 from datasets.signals import sigint_deferred
+from testbed.runtime.parts import part_sources
 from testbed.runtime.recording import Tick
 
 if TYPE_CHECKING:
@@ -255,7 +256,8 @@ def run_description(config: "Config", every: int, truth_rate: float) -> dict[str
     return {"terrain": config.run.terrain, "estimator": config.run.estimator, "gait": config.run.gait,
             "seed": str(config.run.seed), "duration_s": repr(config.run.duration),
             "time_step_s": repr(config.run.time_step), "truth_rate_hz": repr(truth_rate), "truth_every": str(every),
-            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "parts": json.dumps(part_sources(config), sort_keys=True)}
 
 
 def truth_every(time_step: float, rate: float = TRUTH_RATE) -> int:

@@ -2,6 +2,7 @@
 that fails during the run stops it with exit 1 and a valid recording; plugins are recorded and
 found again by `run --from` and `replay`."""
 
+import hashlib
 import json
 import os
 import subprocess
@@ -125,4 +126,20 @@ def test_a_missing_plugin_stops_run_from_and_replay_but_not_info(plugin_dir, tmp
                                          "'my_estimator' (is it on PYTHONPATH or installed?)")
     assert not (tmp_path / "again.mcap").exists()
     info = run_cli(["info", str(recorded)], plugin_dir, tmp_path)
-    assert info.returncode == 0 and "my_estimator:MyComplementary" in info.stdout
+    digest = hashlib.sha256((examples / "my_estimator.py").read_bytes()).hexdigest()
+    assert info.returncode == 0
+    assert f"plugin estimator: my_estimator:MyComplementary ({examples / 'my_estimator.py'}, sha256 {digest[:12]})" \
+        in info.stdout
+
+
+def test_the_recording_names_each_part_with_its_file_hash_and_package(plugin_dir, tmp_path):
+    out = tmp_path / "r.mcap"
+    assert run_cli(["run", "--controller", "bad_plugins:WrongShape", "--duration", "0.2", "--out", str(out)],
+                   plugin_dir, tmp_path).returncode == 0
+    with out.open("rb") as stream:
+        run = next(m.metadata for m in make_reader(stream).iter_metadata() if m.name == "run")
+    parts = json.loads(run["parts"])
+    assert parts["controller"]["target"] == "bad_plugins:WrongShape" and parts["controller"]["distribution"] is None
+    assert parts["controller"]["module_sha256"] == hashlib.sha256((plugin_dir / "bad_plugins.py").read_bytes()).hexdigest()
+    assert parts["terrain"]["target"] == "testbed.world.terrain:FlatTerrain"
+    assert parts["terrain"]["distribution"] == "hexapod-testbed" and parts["terrain"]["version"]
