@@ -56,6 +56,15 @@ def _flat(values: Any) -> list:
     return values.ravel().tolist() if type(values) is np.ndarray else np.ravel(values).tolist()
 
 
+def repeated_fields(message_class: type) -> dict[str, bool]:
+    """Field name -> whether it is repeated, in field order, as descriptor.proto states them (the
+    label means the same on every protobuf version, where FieldDescriptor's own attributes differ)."""
+    described = descriptor_pb2.DescriptorProto()
+    message_class.DESCRIPTOR.CopyToProto(described)
+    repeated = descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED
+    return {field.name: field.label == repeated for field in described.field}
+
+
 class MessageEncoder:
     """Serialises messages of one protobuf class of scalar and repeated scalar fields (the
     `hexapod` messages) from their field values, in the order the descriptor lists the fields:
@@ -68,14 +77,9 @@ class MessageEncoder:
 
     def __init__(self, message_class: type):
         message = self._message = message_class()
-        # The fields as descriptor.proto states them (their label says which are repeated on every
-        # protobuf version, where FieldDescriptor's own attributes for it differ).
-        described = descriptor_pb2.DescriptorProto()
-        message_class.DESCRIPTOR.CopyToProto(described)
-        repeated = descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED
+        repeated = repeated_fields(message_class)
         # (name, the repeated field's container or None for a singular field)
-        self._fields = [(field.name, getattr(message, field.name) if field.label == repeated else None)
-                        for field in described.field]
+        self._fields = [(name, getattr(message, name) if repeated[name] else None) for name in repeated]
         getter = attrgetter(*(name for name, _ in self._fields))
         self._values_of = getter if len(self._fields) > 1 else lambda item: (getter(item),)
 
@@ -115,11 +119,13 @@ class Encoder:
         self._transform_parts = (self._transform.timestamp, self._transform.translation, self._transform.rotation)
 
     def sample(self, sample: Sample) -> tuple[str, bytes]:
-        """(topic name, message bytes) of one sensor sample."""
-        try:
-            topic, encoder = self._samples[type(sample)]
-        except KeyError:
-            raise TypeError(f"cannot record a {type(sample).__name__}") from None
+        """(topic name, message bytes) of one sensor sample; a sensor plugin's sample type gets
+        its own topic (`schemas.sample_topic`)."""
+        kind = type(sample)
+        if kind not in self._samples:
+            topic = schemas.sample_topic(kind)
+            self._samples[kind] = (topic.name, MessageEncoder(topic.message_class))
+        topic, encoder = self._samples[kind]
         return topic, encoder.encode_fields_of(sample)
 
     def estimate(self, estimate: Estimate) -> bytes:
@@ -197,6 +203,15 @@ def decode_sample(topic: str, data: bytes) -> Sample:
         m = schemas.AccelSampleMsg.FromString(data)
         return AccelSample(m.t, m.index, _array(m.accel))
     raise ValueError(f"{topic} is not a sensor topic")
+
+
+def decode_plugin_sample(sample_class: type, data: bytes) -> Sample:
+    """A sensor plugin's sample from its message (`schemas.sample_topic`); arrays come back flat,
+    as float64."""
+    message_class = schemas.sample_topic(sample_class).message_class
+    message = message_class.FromString(data)
+    return sample_class(**{name: _array(getattr(message, name)) if repeated else getattr(message, name)
+                           for name, repeated in repeated_fields(message_class).items()})
 
 
 def decode_estimate(data: bytes) -> Estimate:

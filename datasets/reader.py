@@ -8,10 +8,12 @@ Bad input raises `testbed.model.errors.UserError` with a one-line message.
 
 from __future__ import annotations
 
+import importlib
 import json
 import struct
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from io import BytesIO
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,7 @@ from testbed.control.command import Command
 from testbed.model.truth import Truth
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-REPLAY_TOPICS = frozenset({*schemas.SENSOR_TOPICS, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
+REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 ALL_TOPICS = None
 _RECORD_LENGTH = struct.Struct("<Q")
 _MESSAGE_HEADER = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
@@ -67,6 +69,7 @@ class Recording:
     attachments: dict[str, bytes] = field(default_factory=dict)
     topics: dict[str, TopicStats] = field(default_factory=dict)          # every channel of the file
     messages: dict[str, list[tuple[int, int, bytes]]] = field(default_factory=dict)  # kept topics: (log ns, sequence, data)
+    channel_metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: str | None = None      # why reading stopped before the end of a complete file
 
     # --- run description ----------------------------------------------------------------------
@@ -123,11 +126,18 @@ class Recording:
         return [decode(data) for _, _, data in self.messages.get(topic, [])]
 
     def samples(self) -> list[Sample]:
-        """Every sensor sample, in the order the run loop handed them to the estimator."""
-        tagged = [(sequence, log_ns, topic, data) for topic in schemas.SENSOR_TOPICS
+        """Every sensor sample, in the order the run loop handed them to the estimator. Samples of
+        a sensor plugin come back as instances of its sample class when that can be imported
+        (and are left out otherwise: no estimator of this process could know them)."""
+        decoders = {topic: partial(codec.decode_sample, topic) for topic in schemas.SENSOR_TOPICS}
+        for topic, metadata in self.channel_metadata.items():
+            sample_class = _importable(metadata.get("sample_class"))
+            if sample_class is not None:
+                decoders[topic] = partial(codec.decode_plugin_sample, sample_class)
+        tagged = [(sequence, log_ns, decoders[topic], data) for topic in decoders
                   for log_ns, sequence, data in self.messages.get(topic, [])]
         tagged.sort(key=lambda item: item[:2])     # the recorder numbers samples in handing order
-        return [codec.decode_sample(topic, data) for _, _, topic, data in tagged]
+        return [decode(data) for _, _, decode, data in tagged]
 
     def estimates(self) -> list[Estimate]:
         return self._decoded(schemas.ESTIMATE.name, codec.decode_estimate)
@@ -176,8 +186,20 @@ class Recording:
         return codec.decode_terrain(entries[0][2]) if entries else None
 
 
+def _importable(spec: str | None) -> type | None:
+    """The class named MODULE:CLASS, or None when it cannot be imported."""
+    if not spec or ":" not in spec:
+        return None
+    module_name, _, name = spec.partition(":")
+    try:
+        return getattr(importlib.import_module(module_name), name, None)
+    except Exception:   # noqa: BLE001 - any failure to import a plugin means its samples stay unread
+        return None
+
+
 def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS) -> Recording:
-    """Everything readable in the file; the payloads of `topics` only (all when None)."""
+    """Everything readable in the file; the payloads of `topics` only (all when None; a name
+    ending in '/' takes every topic under it)."""
     path = Path(path)
     _check_is_mcap(path)
     recording = Recording(path)
@@ -206,6 +228,11 @@ class _ReadState:
         self.channel_topics: dict[int, str] = {}
         self.schema_names: dict[int, str] = {}
 
+    def wanted(self, topic: str) -> bool:
+        """A topic among `topics`, or under one of them that ends in '/'."""
+        topics = self.topics
+        return topics is None or topic in topics or any(name.endswith("/") and topic.startswith(name) for name in topics)
+
     def take(self, record: Any) -> None:
         recording = self.recording
         if isinstance(record, Message):
@@ -213,10 +240,11 @@ class _ReadState:
             if topic is None:
                 return
             recording.topics[topic].add(record.log_time)
-            if self.topics is None or topic in self.topics:
+            if self.wanted(topic):
                 recording.messages[topic].append((record.log_time, record.sequence, record.data))
         elif isinstance(record, Channel):
             self.channel_topics[record.id] = record.topic
+            recording.channel_metadata[record.topic] = dict(record.metadata)
             recording.topics.setdefault(record.topic, TopicStats(self.schema_names.get(record.schema_id, "")))
             recording.messages.setdefault(record.topic, [])
         elif isinstance(record, Schema):

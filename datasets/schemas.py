@@ -14,7 +14,12 @@ estimator gives no value; an empty repeated field likewise.
 
 from __future__ import annotations
 
+import dataclasses
+import typing
 from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
@@ -26,6 +31,7 @@ PACKAGE = "hexapod"
 FORMAT_VERSION = "1"
 
 _TYPES = {"double": descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
+          "int64": descriptor_pb2.FieldDescriptorProto.TYPE_INT64,
           "bool": descriptor_pb2.FieldDescriptorProto.TYPE_BOOL,
           "uint32": descriptor_pb2.FieldDescriptorProto.TYPE_UINT32,
           "string": descriptor_pb2.FieldDescriptorProto.TYPE_STRING}
@@ -61,8 +67,12 @@ MESSAGES: dict[str, list[tuple[str, str, str]]] = {
 
 
 def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
-    proto = descriptor_pb2.FileDescriptorProto(name=f"{PACKAGE}/dataset.proto", package=PACKAGE, syntax="proto3")
-    for message_name, fields in MESSAGES.items():
+    return _file_proto(f"{PACKAGE}/dataset.proto", PACKAGE, MESSAGES)
+
+
+def _file_proto(name: str, package: str, messages: dict[str, list[tuple[str, str, str]]]):
+    proto = descriptor_pb2.FileDescriptorProto(name=name, package=package, syntax="proto3")
+    for message_name, fields in messages.items():
         message = proto.message_type.add(name=message_name)
         for number, (name, type_name, kind) in enumerate(fields, start=1):
             field = message.field.add(name=name, number=number, type=_TYPES[type_name], json_name=name,
@@ -100,6 +110,7 @@ class Topic:
     name: str
     message_class: type
     description: str
+    sample_class: str | None = None     # MODULE:CLASS of a sensor plugin's sample type (channel metadata)
 
 
 TRUTH_POSE = Topic("/truth/pose", PoseInFrame, "body pose in the world frame at every physics step")
@@ -119,3 +130,33 @@ COMMAND = Topic("/command", CommandMsg, "gait phase, foot targets, joint command
 TOPICS = (TRUTH_POSE, TRUTH_FEET, TF, TERRAIN, TRUTH_STATE, TRUTH_CONTACTS, TRUTH_SUPPORT, IMU, ACCEL_ARRAY, ENCODERS, FEET,
           ESTIMATE, COMMAND)
 SENSOR_TOPICS = (IMU.name, ACCEL_ARRAY.name, ENCODERS.name, FEET.name)
+SENSOR_PREFIX = "/sensors/"
+SAMPLES_PACKAGE = f"{PACKAGE}.samples"
+
+# A sample dataclass's field types and the protobuf fields that record them.
+_SAMPLE_FIELDS = {float: ("double", "one"), int: ("int64", "one"), bool: ("bool", "one"),
+                  np.ndarray: ("double", "many"), tuple: ("double", "many")}
+
+
+@cache
+def sample_topic(sample_class: type) -> Topic:
+    """The topic of a sensor plugin's sample type: `/sensors/<module>.<Class>`, with a message of
+    the dataclass's fields (float -> double, int -> int64, bool -> bool, arrays and tuples ->
+    repeated double, row-major) in the package `hexapod.samples.<module>`."""
+    if not dataclasses.is_dataclass(sample_class):
+        raise TypeError(f"cannot record a {sample_class.__name__}: sensor samples are dataclasses")
+    hints = typing.get_type_hints(sample_class)
+    fields = []
+    for field in dataclasses.fields(sample_class):
+        hint = typing.get_origin(hints[field.name]) or hints[field.name]
+        if hint not in _SAMPLE_FIELDS:
+            raise TypeError(f"cannot record {sample_class.__name__}.{field.name} of type {hints[field.name]}")
+        fields.append((field.name, *_SAMPLE_FIELDS[hint]))
+    package = f"{SAMPLES_PACKAGE}.{sample_class.__module__}"
+    proto = _file_proto(f"{PACKAGE}/samples/{sample_class.__module__}.{sample_class.__qualname__}.proto", package,
+                        {sample_class.__qualname__: fields})
+    message_class = GetMessageClass(descriptor_pool.DescriptorPool().Add(proto).message_types_by_name[
+        sample_class.__qualname__])
+    spec = f"{sample_class.__module__}:{sample_class.__qualname__}"
+    return Topic(f"{SENSOR_PREFIX}{sample_class.__module__}.{sample_class.__qualname__}", message_class,
+                 f"samples of {spec}", spec)

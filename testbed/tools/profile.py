@@ -208,7 +208,7 @@ def time_stages(config: Config) -> tuple[dict[str, float], float, float]:
         "contact": totals["contact"],
         "sensors": totals["sensors"],
         "estimator": totals["estimator"],
-        "controller": totals["pilot"] - totals["estimator"],
+        "controller": totals["pilot"],
         "recording": totals["recording"],
         "metrics": totals["metrics"],
     }

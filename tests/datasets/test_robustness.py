@@ -11,6 +11,7 @@ import sys
 import textwrap
 
 import pytest
+from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from datasets.reader import read_recording
@@ -66,8 +67,11 @@ def test_a_file_cut_inside_its_first_records_is_not_a_dataset(ekf_run, tmp_path)
 
 def test_a_corrupt_chunk_ends_the_readable_part(ekf_run, tmp_path):
     _, _, path = ekf_run
+    with path.open("rb") as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    chunk = chunks[len(chunks) // 2]
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2      # inside the chunk's compressed records
     data = bytearray(path.read_bytes())
-    middle = len(data) // 2
     data[middle:middle + 64] = bytes(64)
     corrupt = tmp_path / "corrupt.mcap"
     corrupt.write_bytes(bytes(data))
