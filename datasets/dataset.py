@@ -23,19 +23,19 @@ estimator that gives no covariance), are NaN.
 
 Reading is columnar: the file's chunk index names the chunks that hold the topic and each chunk's
 message index where in it the topic's messages lie, so the other topics' messages are never
-parsed; each message is decoded with its protobuf class and its fields appended to flat columns.
+parsed; each message is decoded with its protobuf class (datasets/schemas.py), and each field's
+values over all the messages become columns at once.
 """
 
 from __future__ import annotations
 
 import json
 import struct
-from itertools import chain
-from operator import attrgetter
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import chain
+from operator import attrgetter
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas
@@ -82,7 +82,13 @@ FOXGLOVE_FIELDS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "foxglove.FrameTransform": (("translation", ("translation",)), ("rotation", ("rotation",))),
 }
 NS_PER_S = 1_000_000_000
-_DTYPES = {"double": float, "bool": bool, "uint32": np.int64, "string": object}
+_DTYPES = {"double": float, "bool": bool, "uint32": np.int64}
+# Record layouts of the MCAP specification (little-endian): every record starts with its opcode
+# and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
+# channel id, sequence, log and publish time, then the data.
+RECORD_HEADER = struct.Struct("<BQ")
+MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
+MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 
 
 @dataclass(frozen=True)
@@ -182,13 +188,6 @@ class Dataset:
         return payloads
 
 
-# Record layouts of the MCAP specification (little-endian): every record starts with its opcode
-# and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
-# channel id, sequence, log and publish time, then the data.
-RECORD_HEADER = struct.Struct("<BQ")
-MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
-MESSAGE_HEADER = struct.Struct("<BQHIQQ")
-
 
 def _message_offsets(stream, index_offset: int) -> np.ndarray:
     """The offsets in their chunk of the messages that a Message Index record lists."""
@@ -248,25 +247,26 @@ def _repeated_columns(name: str, dtype: type, rows: list) -> dict[str, np.ndarra
 
 def _foxglove_columns(message_class: type, fields: tuple[tuple[str, tuple[str, ...]], ...],
                       payloads: list[bytes]) -> dict[str, np.ndarray]:
-    rows: list[list[float]] = []
+    """`t` from the timestamp, then the components of each nested message in `fields`."""
     message = message_class()
+    names = ["t"] + [f"{prefix}_{component.name}" for prefix, path in fields
+                     for component in _nested(message, path).DESCRIPTOR.fields]
+    rows = []
     for data in payloads:
         message.ParseFromString(data)
         row = [message.timestamp.seconds + message.timestamp.nanos / NS_PER_S]
         for _prefix, path in fields:
-            value: Any = message
-            for name in path:
-                value = getattr(value, name)
-            row += [getattr(value, descriptor.name) for descriptor in value.DESCRIPTOR.fields]
+            nested = _nested(message, path)
+            row += [getattr(nested, component.name) for component in nested.DESCRIPTOR.fields]
         rows.append(row)
-    names = ["t"]
-    for prefix, path in fields:
-        nested = message
-        for name in path:
-            nested = getattr(nested, name)
-        names += [f"{prefix}_{descriptor.name}" for descriptor in nested.DESCRIPTOR.fields]
     table = np.asarray(rows, dtype=float).reshape(len(rows), len(names))
     return {name: table[:, i] for i, name in enumerate(names)}
+
+
+def _nested(message, path: tuple[str, ...]):
+    for name in path:
+        message = getattr(message, name)
+    return message
 
 
 def load(path: str | Path) -> Dataset:

@@ -24,6 +24,7 @@ from testbed.world.terrain import Terrain
 __all__ = ["Result", "run", "load", "replay", "Dataset", "make_config"]
 
 PROGRESS_PERIOD = 0.1       # s of simulated time between two updates of the progress bar
+PROGRESS_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s simulated [{elapsed}<{remaining}]"
 
 
 @dataclass(frozen=True)
@@ -99,18 +100,20 @@ class ProgressRecorder:
         self.next_update = 0.0
 
     def start(self, config: Config, urdf: str, terrain: Terrain) -> None:
-        self.bar = tqdm(total=round(config.run.duration, 3), unit="sim s", desc="run")
+        self.bar = tqdm(total=config.run.duration, unit="sim s", desc="run", bar_format=PROGRESS_FORMAT)
         self.inner.start(config, urdf, terrain)
 
     def record(self, tick: Tick) -> None:
         self.inner.record(tick)
         t = tick.truth.t
         if t >= self.next_update:
-            self.bar.update(round(t - self.bar.n, 3))
+            self.bar.n = min(t, self.bar.total)
+            self.bar.refresh()
             self.next_update = t + PROGRESS_PERIOD
 
     def finish(self, metrics: dict, error: str | None) -> None:
         try:
             self.inner.finish(metrics, error)
         finally:
+            self.bar.n = min(metrics.get("sim_time_s", self.bar.n), self.bar.total)
             self.bar.close()

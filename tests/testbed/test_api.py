@@ -142,11 +142,12 @@ def test_replay_equals_the_command_line_replay(recorded, tmp_path):
     assert replayed.metrics["estimator"] == "vqf" and replayed.path is None
 
 
-def test_run_takes_a_toml_file_and_part_instances(tmp_path):
+def test_run_takes_a_toml_file_and_part_instances(tmp_path, capsys):
     toml = tmp_path / "short.toml"
     toml.write_text('[run]\nduration = 0.5\nestimator = "ekf"\n')
     config = make_config(toml)
-    result = testbed.run(toml, estimator=make_estimator("complementary", config))
+    result = testbed.run(toml, estimator=make_estimator("complementary", config), progress=True)
+    assert "0.5/0.5 s simulated" in capsys.readouterr().err
     assert result.path is None and result.error is None
     assert result.metrics["sim_time_s"] == pytest.approx(0.5)
     assert result.metrics["roll_rmse_deg"] is None      # scored after the first second only
