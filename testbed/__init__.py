@@ -23,6 +23,7 @@ _EXPORTS = {
 }
 GYM_ENV_ID = "HexapodTestbed-v0"
 GYM_ENTRY_POINT = "testbed.gym_env:HexapodTestbedEnv"
+GYM_MAX_EPISODE_STEPS = 1000    # gymnasium.make's time limit (10 s at the default control period)
 
 
 def __getattr__(name):
@@ -38,7 +39,7 @@ def __dir__():
 def register_gym_env(gymnasium) -> None:
     """Register HexapodTestbed-v0 with `gymnasium` (the module), once."""
     if GYM_ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=GYM_ENV_ID, entry_point=GYM_ENTRY_POINT)
+        gymnasium.register(id=GYM_ENV_ID, entry_point=GYM_ENTRY_POINT, max_episode_steps=GYM_MAX_EPISODE_STEPS)
 
 
 class _RegisterAfterImport:

@@ -146,8 +146,9 @@ class HexapodTestbedEnv(gymnasium.Env):
     - `reward_weights`: weights of `default_reward` (forward, tilt, height, fall); `reward`: a
       function of a `Transition` in its place; `termination`: a function of a `Transition` that
       ends the episode (default: a fall).
-    - `max_episode_steps`: truncation after this many steps (None: none); an episode is also
-      truncated when the body comes within TERRAIN_MARGIN of the terrain's edge.
+    - `max_episode_steps`: truncation after this many steps (None: none; `gymnasium.make` adds
+      its own time limit, 1000 steps unless given); an episode is also truncated when the body
+      comes within TERRAIN_MARGIN of the terrain's edge.
     - `pilot`: the controller spec that action="posture" corrects: "posture" (the built-in pilot
       with its posture loops; the default with an estimator) or "none" (gait, terrain adaptation
       and inverse kinematics only, so that the agent's correction is the whole posture law; the
@@ -162,7 +163,7 @@ class HexapodTestbedEnv(gymnasium.Env):
                  reward_weights: dict[str, float] | None = None,
                  reward: Callable[[Transition], float] | None = None,
                  termination: Callable[[Transition], bool] | None = None,
-                 max_episode_steps: int | None = 1000, pilot: str | None = None, render_mode: str | None = None):
+                 max_episode_steps: int | None = None, pilot: str | None = None, render_mode: str | None = None):
         if render_mode is not None:
             raise ValueError(f"{ENV_ID} does not render (render_mode {render_mode!r})")
         if action not in ACTIONS:

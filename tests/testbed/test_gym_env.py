@@ -159,3 +159,11 @@ def test_control_period_must_be_a_multiple_of_the_physics_step():
 def test_roll_pitch_yaw_of_a_rotation():
     c, s = np.cos(0.3), np.sin(0.3)
     assert roll_pitch_yaw(np.array([[1, 0, 0], [0, c, -s], [0, s, c]])) == pytest.approx((0.3, 0.0, 0.0))
+
+
+def test_gymnasium_make_limits_episodes_to_1000_steps_or_as_asked():
+    assert gymnasium.make(ENV_ID).spec.max_episode_steps == 1000
+    env = gymnasium.make(ENV_ID, max_episode_steps=2, estimator=None)
+    env.reset(seed=0)
+    standing = env.unwrapped.sim.standing_targets.astype(np.float32)
+    assert [env.step(standing)[3] for _ in range(2)] == [False, True]
