@@ -16,8 +16,9 @@ from datasets.replay import replay as replay_recording
 from estimators.base import Estimator
 from testbed.control.controller import Controller
 from testbed.runtime import config as config_module
-from testbed.runtime.config import Config, resolve_parts
+from testbed.runtime.config import Config
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
+from testbed.runtime.runner import build_parts
 from testbed.runtime.runner import run as run_loop
 from testbed.world.terrain import Terrain
 
@@ -62,12 +63,12 @@ def run(overrides: dict[str, Any] | str | Path | Config | None = None, *,
     plugin that fails) gives its metrics so far and `Result.error`; Ctrl-C closes the file and
     raises KeyboardInterrupt."""
     config = make_config(overrides)
-    resolve_parts(config)
+    parts = build_parts(config, estimator, controller, terrain)    # a bad plugin stops here, before any file
     path = None if out is None else Path(out)
     recorder: Recorder = NullRecorder() if path is None else McapRecorder(path)
     if progress:
         recorder = ProgressRecorder(recorder)
-    outcome = run_loop(config, recorder, estimator=estimator, controller=controller, terrain=terrain)
+    outcome = run_loop(config, recorder, parts=parts)
     if outcome.interrupted:
         raise KeyboardInterrupt(outcome.error)
     return Result(outcome.metrics, path, outcome.error)
