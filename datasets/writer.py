@@ -6,7 +6,8 @@ final rename) off the run loop, which holds the GIL for the whole simulated step
 would only take turns with it, a process runs beside it.
 
 - Batches of serialised messages go to the writer through a `multiprocessing` Pipe, one pickle
-  per handover; the writer answers only the start and `close`, and reports a failed write at
+  per handover, into a kernel buffer large enough for a whole batch (`Link`), so that handing it
+  over is a copy and does not wait for the writer to be scheduled; the writer answers only the start and `close`, and reports a failed write at
   once, which the next handover or `close` raises as `WriterFailed`.
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
@@ -19,6 +20,7 @@ would only take turns with it, a process runs beside it.
 
 from __future__ import annotations
 
+import fcntl
 import gc
 import json
 import math
@@ -49,6 +51,7 @@ CHUNK_SIZE = 8 * 2**20      # bytes; chunks normally close at each flush, before
 PROFILE = "hexapod-testbed"
 VERSIONED_PACKAGES = ("hexapod-testbed", "numpy", "scipy", "dartpy", "filterpy", "control", "AHRS", "vqf",
                       "mcap", "mcap-protobuf-support", "foxglove-schemas-protobuf", "protobuf", "rerun-sdk")
+PIPE_BYTES = 2**20          # kernel buffer of the pipe to the writer (Linux's default upper limit)
 ENDED_OUTCOME = {"error": "the recording process ended without closing the file"}
 
 Message = tuple[int, int, bytes, int]       # channel id, log time (ns, also the publish time), data, sequence
@@ -173,6 +176,38 @@ class RunDescription:
         return cls(run_info, json.dumps(config.to_dict(), sort_keys=True), config.to_toml(), urdf, package_versions())
 
 
+class Link:
+    """One end of the two one-way pipes between the recording process and its writer."""
+
+    def __init__(self, incoming: Connection, outgoing: Connection):
+        self.incoming, self.outgoing = incoming, outgoing
+
+    def send(self, message: tuple) -> None:
+        self.outgoing.send(message)
+
+    def recv(self) -> tuple:
+        return self.incoming.recv()
+
+    def poll(self) -> bool:
+        return self.incoming.poll()
+
+    def close(self) -> None:
+        self.incoming.close()
+        self.outgoing.close()
+
+
+def link_pair() -> tuple[Link, Link]:
+    """(recording process's end, writer's end); the pipe to the writer holds `PIPE_BYTES` where
+    the system allows it, else its default (64 kB)."""
+    command_reader, command_writer = Pipe(duplex=False)
+    reply_reader, reply_writer = Pipe(duplex=False)
+    try:
+        fcntl.fcntl(command_writer.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except OSError:         # above /proc/sys/fs/pipe-max-size, or the user's pipe quota
+        pass
+    return Link(reply_reader, command_writer), Link(command_reader, reply_writer)
+
+
 class WriterProcess:
     """A `DatasetWriter` in a forked process, fed through a pipe: `write` hands a batch over and
     returns, `close` returns when the file is closed and renamed."""
@@ -186,7 +221,7 @@ class WriterProcess:
         description = RunDescription.of(run_info, config, urdf)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         stream = open(self.partial_path, "wb")
-        self._connection, writer_end = Pipe()
+        self._connection, writer_end = link_pair()
         try:
             self.pid = _fork_writer(self.path, stream, description, writer_end, self._connection)
         finally:
@@ -217,7 +252,10 @@ class WriterProcess:
     def _stop_waiting(self) -> None:
         """Close the pipe (the writer, if still running, closes the file) and wait for the writer."""
         self._connection.close()
-        os.waitpid(self.pid, 0)
+        try:
+            os.waitpid(self.pid, 0)
+        except ChildProcessError:       # reaped already, where SIGCHLD is ignored
+            pass
 
     def _send(self, command: str, *args) -> None:
         try:
@@ -246,8 +284,8 @@ class WriterProcess:
         return f"writing {self.partial_path} failed: {reason}"
 
 
-def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Connection,
-                 parent_end: Connection) -> int:
+def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,
+                 parent_end: Link) -> int:
     """Fork the writer process with SIGINT and SIGTERM ignored from its first instruction on."""
     stopping = {signal.SIGINT, signal.SIGTERM}
     blocked = signal.pthread_sigmask(signal.SIG_BLOCK, stopping)
@@ -264,7 +302,7 @@ def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, con
     return pid
 
 
-def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Connection) -> None:
+def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
     """The writer process's life; it leaves through `os._exit` (no handlers of the parent run)."""
     gc.disable()        # its messages make no reference cycles; collecting would copy the parent's pages
     status = 1
@@ -275,7 +313,7 @@ def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, conn
         os._exit(status)
 
 
-def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Connection) -> None:
+def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
     try:
         dataset = DatasetWriter(path, stream)
         dataset.describe(description)
@@ -286,7 +324,7 @@ def _serve(path: Path, stream: IO[bytes], description: RunDescription, connectio
     _write_batches(dataset, connection)
 
 
-def _write_batches(dataset: DatasetWriter, connection: Connection) -> None:
+def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
     """Write what comes until `close` or the end of the pipe; report the first failed write."""
     reported = False
     while True:
@@ -306,7 +344,7 @@ def _write_batches(dataset: DatasetWriter, connection: Connection) -> None:
                 reported = True
 
 
-def _close(dataset: DatasetWriter, args: list, connection: Connection) -> None:
+def _close(dataset: DatasetWriter, args: list, connection: Link) -> None:
     try:
         dataset.close(*args)
     except Exception as error:
