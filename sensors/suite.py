@@ -39,6 +39,10 @@ class SensorSuite:
         built = (SENSORS.build(name, config, context) for name in SENSORS.names())
         return cls([sensor for sensor in built if sensor is not None])
 
+    def sensor(self, kind: type[Sensor]) -> Sensor:
+        """The suite's sensor of this class."""
+        return next(sensor for sensor in self.sensors if isinstance(sensor, kind))
+
     def update(self, truth: Truth) -> list[Sample]:
         """Samples with t in (previous truth.t, truth.t], sorted by t (ties: IMU, array, encoders, feet)."""
         samples: list[Sample] = []

@@ -13,6 +13,7 @@ import textwrap
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
+from multiprocessing.connection import Connection
 
 from datasets.reader import read_recording
 from datasets.recorder import McapRecorder
@@ -120,33 +121,38 @@ def test_an_unknown_estimator_is_a_user_error(ekf_run):
         replay(path, "kalman")
 
 
-def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly(tmp_path, monkeypatch):
+@pytest.fixture
+def ctrl_c_raises():
+    """SIGINT raises KeyboardInterrupt, even where pytest was started with it ignored (in the background)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.usefixtures("ctrl_c_raises")
+def test_ctrl_c_during_a_handover_is_delivered_after_it_and_the_file_closes_validly(tmp_path, monkeypatch):
     config = synthetic_config("complementary")
     ticks = list(generate_ticks(config, 1.2))
     recorder = McapRecorder(tmp_path / "run.mcap")
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
-    calls = []
-    add_message, flush = Writer.add_message, Writer.flush
+    sent = []
+    send = Connection.send
 
-    def add_then_interrupt(writer, *args, **kwargs):
-        calls.append("add")
-        if len(calls) == 10:
-            os.kill(os.getpid(), signal.SIGINT)     # lands between two messages of the flush at 0.5 s
-        add_message(writer, *args, **kwargs)
+    def interrupt_then_send(connection, message):
+        sent.append(message[0])
+        if len(sent) == 1:
+            os.kill(os.getpid(), signal.SIGINT)     # lands inside the handover at 0.5 s
+        send(connection, message)
+        sent.append("sent")
 
-    def flush_and_note(writer):
-        flush(writer)
-        calls.append("flush")
-
-    monkeypatch.setattr(Writer, "add_message", add_then_interrupt)
-    monkeypatch.setattr(Writer, "flush", flush_and_note)
+    monkeypatch.setattr(Connection, "send", interrupt_then_send)
     recorded = 0
     with pytest.raises(KeyboardInterrupt):
         for tick in ticks:
             recorded += 1
             recorder.record(tick)
-    assert calls.count("add") > 10 and calls[-1] == "flush"      # the flush went on to its end
+    assert sent == ["write", "sent"]        # the handover went on to its end
     recorder.finish({"interrupted": True}, "interrupted")
     recording = read_recording(recorder.path)
     assert recording.truncated is None and recording.metrics() == {"interrupted": True}
@@ -156,7 +162,7 @@ def test_ctrl_c_during_a_write_is_delivered_after_it_and_the_file_closes_validly
 
 # A child process recording 1.7 s of synthetic ticks to sys.argv[1], flushing at 0.5, 1.0 and 1.5 s.
 RECORDING_RUN = textwrap.dedent("""
-    import os, sys
+    import os, signal, sys
     from datasets.recorder import McapRecorder
     from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
     config = synthetic_config("complementary")
@@ -167,34 +173,74 @@ RECORDING_RUN = textwrap.dedent("""
         recorder.record(tick)
 """)
 
+# The same, with a Ctrl-C to the whole process group (the writer process too) at 1.0 s.
+INTERRUPTED_RUN = textwrap.dedent("""
+    import os, signal, sys
+    from datasets.recorder import McapRecorder
+    from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
+    config = synthetic_config("complementary")
+    recorder = McapRecorder(sys.argv[1])
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    signal.signal(signal.SIGINT, signal.default_int_handler)    # also when started with SIGINT ignored
+    try:
+        for tick in generate_ticks(config, 1.7):
+            recorder.record(tick)
+            if tick.truth.t == 1.0:
+                os.killpg(os.getpgid(0), signal.SIGINT)
+    except KeyboardInterrupt:
+        recorder.finish({"interrupted": True}, "interrupted")
+        print("finished", recorder.path.exists())
+""")
+
 
 def run_child(script: str, path) -> subprocess.CompletedProcess:
+    """Run `script` in its own process group; return when it and its writer process have ended
+    (the writer holds the output pipes too)."""
     return subprocess.run([sys.executable, "-c", script, str(path)], cwd=os.getcwd(), timeout=120,
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, start_new_session=True)
 
 
-def test_a_killed_run_leaves_a_partial_file_that_reads_up_to_its_last_flush(tmp_path):
-    path = tmp_path / "killed.mcap"
-    result = run_child(RECORDING_RUN + "os.kill(os.getpid(), 9)\n", path)
-    assert result.returncode == -9, result.stderr
+def test_ctrl_c_to_the_process_group_leaves_the_writer_running_and_the_file_complete(tmp_path):
+    path = tmp_path / "interrupted.mcap"
+    result = run_child(INTERRUPTED_RUN, path)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "finished True\n"      # `finish` returned after the rename
+    recording = read_recording(path)
+    assert recording.truncated is None and recording.metrics() == {"interrupted": True}
+    assert recording.outcome()["error"] == "interrupted"
+    assert 1.0 <= recording.duration_s() < 1.1
+    assert run_rerun("mcap", "check", str(path)).returncode == 0
+
+
+def assert_closed_by_the_writer_alone(path) -> None:
+    """The writer closed the file validly, under its temporary name, with what was handed over."""
     partial = path.with_name(path.name + ".partial")
     assert partial.exists() and not path.exists()
     recording = read_recording(partial)
-    assert recording.truncated is not None
+    assert recording.truncated is None and recording.metrics() == {}
+    assert recording.outcome()["error"] == "the recording process ended without closing the file"
     assert 1.5 <= recording.duration_s() < 1.7
+    assert run_rerun("mcap", "check", str(partial)).returncode == 0
     assert replay(partial, "complementary").metrics["roll_rmse_deg"] is not None
 
 
-def test_a_run_that_dies_of_an_exception_keeps_every_flushed_chunk(tmp_path):
+def test_a_killed_run_leaves_a_valid_partial_file_up_to_its_last_handover(tmp_path):
+    path = tmp_path / "killed.mcap"
+    result = run_child(RECORDING_RUN + "os.kill(os.getpid(), 9)\n", path)
+    assert result.returncode == -9, result.stderr
+    assert_closed_by_the_writer_alone(path)
+
+
+def test_a_run_that_dies_of_an_exception_keeps_every_handed_over_message(tmp_path):
     path = tmp_path / "died.mcap"
     result = run_child(RECORDING_RUN + "raise RuntimeError('the run loop failed')\n", path)
     assert result.returncode == 1 and "the run loop failed" in result.stderr
-    recording = read_recording(path.with_name(path.name + ".partial"))
-    assert 1.5 <= recording.duration_s() < 1.7
+    assert_closed_by_the_writer_alone(path)
 
 
-# A child process whose file may not grow past what it holds after the flush at 0.5 s (a full
-# disk): the flush at 1.0 s fails, and so does `finish`.
+# A child process whose writer may not grow the file much past its head (a full disk): the
+# flush at 0.5 s fails in the writer, a later handover raises it, and so does `finish`.
 FULL_DISK_RUN = textwrap.dedent("""
     import resource, sys
     from datasets.recorder import McapRecorder, WriterFailed
@@ -203,14 +249,13 @@ FULL_DISK_RUN = textwrap.dedent("""
     recorder = McapRecorder(sys.argv[1])
     terrain, urdf = terrain_and_urdf(config)
     recorder.start(config, urdf, terrain)
+    limit = recorder.partial_path.stat().st_size + 20_000
+    resource.prlimit(recorder.writer_pid, resource.RLIMIT_FSIZE, (limit, limit))
     try:
-        for tick in generate_ticks(config, 1.2):
+        for tick in generate_ticks(config, 1.7):
             recorder.record(tick)
-            if tick.truth.t == 0.5:
-                size = recorder.partial_path.stat().st_size
-                resource.setrlimit(resource.RLIMIT_FSIZE, (size + 1000, size + 1000))
-    except OSError as error:
-        print("record:", error.strerror, tick.truth.t)
+    except WriterFailed as error:
+        print("record:", tick.truth.t, error)
     try:
         recorder.finish({}, None)
     except WriterFailed as error:
@@ -218,14 +263,15 @@ FULL_DISK_RUN = textwrap.dedent("""
 """)
 
 
-def test_a_failed_write_is_raised_and_leaves_the_partial_file(tmp_path):
+def test_a_failed_write_is_raised_in_one_line_and_leaves_the_partial_file(tmp_path):
     path = tmp_path / "full.mcap"
     result = run_child(FULL_DISK_RUN, path)
     assert result.returncode == 0, result.stderr
     record_line, finish_line = result.stdout.splitlines()
-    assert record_line == "record: File too large 1.0"
-    assert finish_line.startswith("finish: ") and "an earlier write failed (" in finish_line
     partial = path.with_name(path.name + ".partial")
+    assert record_line.startswith(("record: 1.0 ", "record: 1.5 "))
+    assert record_line.endswith(f"writing {partial} failed: [Errno 27] File too large")
+    assert finish_line.startswith(f"finish: writing {partial} failed: ") and "File too large" in finish_line
     assert partial.exists() and not path.exists()
     recording = read_recording(partial)
-    assert recording.truncated is not None and 0.5 <= recording.duration_s() < 1.0
+    assert recording.truncated is not None and recording.samples() == []

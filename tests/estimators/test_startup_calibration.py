@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sensors.imu import Imu
 from sensors.suite import SensorSuite
 from testbed.runtime import config as config_module
 from testbed.runtime.runner import run, true_roll_pitch
@@ -27,7 +28,7 @@ def stand_and_measure(estimator: str, tilt_deg: float, seed: int = 7) -> tuple[n
     last = collect.ticks[-1]
     estimate = [tick.estimates[-1] for tick in collect.ticks if tick.estimates][-1]
     error = np.subtract((estimate.roll, estimate.pitch), true_roll_pitch(last.truth))
-    return error, SensorSuite.from_config(config).imu.channels.triads[0].turn_on_bias
+    return error, SensorSuite.from_config(config).sensor(Imu).channels.triads[0].turn_on_bias
 
 
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
@@ -53,7 +54,8 @@ def stand_with_a_leaning_z_axis(estimator: str, belief: float, monkeypatch) -> t
     towards y; (roll error, its reported std) at the end, rad."""
     def leaning(config):
         suite = BUILD_SUITE(config)
-        suite.imu.channels.gain[2, :3] += CROSS_AXIS * suite.imu.channels.gain[1, :3]
+        imu = suite.sensor(Imu)
+        imu.channels.gain[2, :3] += CROSS_AXIS * imu.channels.gain[1, :3]
         return suite
 
     monkeypatch.setattr(SensorSuite, "from_config", leaning)

@@ -1,0 +1,386 @@
+"""The MCAP file of a run: `DatasetWriter` writes it in the calling process, `WriterProcess`
+has a forked process write it.
+
+`WriterProcess` takes the file writing (mcap's `add_message`, zstd compression, indexes, the
+final rename) off the run loop, which holds the GIL for the whole simulated step: a thread
+would only take turns with it, a process runs beside it.
+
+- Batches of serialised messages go to the writer through a `multiprocessing` Pipe, one pickle
+  per handover, into a kernel buffer large enough for a whole batch (`Link`), so that handing it
+  over is a copy and does not wait for the writer to be scheduled; the writer answers only the start and `close`, and reports a failed write at
+  once, which the next handover or `close` raises as `WriterFailed`.
+- The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
+  stops on `close`, or when its pipe reaches end of file because the recording process ended
+  without closing: it then closes the file validly and leaves it under its `.partial` name.
+- It is started with `os.fork`: it needs nothing but what this module imported (mcap, zstd,
+  file I/O), so forking copies no state it could trip on (it never touches the parent's threads,
+  BLAS or DART), costs a few milliseconds, and works in daemonic processes (Dask nanny workers,
+  `multiprocessing.Pool` workers), where `multiprocessing.Process` refuses to start children.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import gc
+import json
+import math
+import os
+import platform
+import signal
+import time
+from functools import cache
+from importlib import metadata as package_metadata
+from multiprocessing import Pipe
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import IO, TYPE_CHECKING
+
+import numpy as np
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import build_file_descriptor_set
+
+from datasets import schemas
+from datasets.signals import sigint_deferred
+
+if TYPE_CHECKING:
+    from testbed.runtime.config import Config
+
+PARTIAL_SUFFIX = ".partial"
+CHUNK_SIZE = 8 * 2**20      # bytes; chunks normally close at each flush, before reaching this
+PROFILE = "hexapod-testbed"
+VERSIONED_PACKAGES = ("hexapod-testbed", "numpy", "scipy", "dartpy", "filterpy", "control", "AHRS", "vqf",
+                      "mcap", "mcap-protobuf-support", "foxglove-schemas-protobuf", "protobuf", "rerun-sdk")
+PIPE_BYTES = 2**20          # kernel buffer of the pipe to the writer (Linux's default upper limit)
+ENDED_OUTCOME = {"error": "the recording process ended without closing the file"}
+
+Message = tuple[int, int, bytes, int]       # channel id, log time (ns, also the publish time), data, sequence
+
+
+class WriterFailed(Exception):
+    """A write to the dataset failed; the file was left as it was then."""
+
+
+def partial_path_of(path: Path) -> Path:
+    return path.with_name(path.name + PARTIAL_SUFFIX)
+
+
+class DatasetWriter:
+    """An MCAP file of the dataset format: every topic registered, the run description first,
+    written under a temporary name until `close`."""
+
+    def __init__(self, path: str | Path, stream: IO[bytes] | None = None):
+        """Write to `stream` if given (the temporary file, opened), else create the temporary file."""
+        self.path = Path(path)
+        self.partial_path = partial_path_of(self.path)
+        if stream is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            stream = open(self.partial_path, "wb")
+        self._file = stream
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._failure: BaseException | None = None
+        self.closed = False
+        self._writing(self._writer.start, profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
+        self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
+
+    def describe_run(self, run_info: dict[str, str], config: "Config", urdf: str) -> None:
+        """Metadata and attachments go before any message, so that even a truncated file can be
+        replayed."""
+        self.describe(RunDescription.of(run_info, config, urdf))
+
+    def describe(self, description: "RunDescription") -> None:
+        self._writing(self._describe_run, description)
+
+    def write(self, messages: list[Message], flush: bool) -> None:
+        """Add the messages; `flush` closes the chunk and puts it on the file, flushed."""
+        self._writing(self._write, messages, flush)
+
+    def close(self, metrics: dict, outcome: dict[str, str], rename: bool = True) -> None:
+        """Write the metrics, the outcome and the summary, then give the file its final name
+        (unless not `rename`). If a write fails, now or before (`WriterFailed`), close the file as
+        it is under its temporary name and raise."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writing(self._finish, metrics, outcome)
+            self._file.close()
+            if rename:
+                os.replace(self.partial_path, self.path)
+        finally:
+            if not self._file.closed:
+                self._close_quietly()
+
+    def abandon(self) -> None:
+        """Close without a summary and delete the temporary file (nothing worth keeping was written)."""
+        self.closed = True
+        self._close_quietly()
+        self.partial_path.unlink(missing_ok=True)
+
+    def _close_quietly(self) -> None:
+        """Close the file after an error, which already says what went wrong."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+    def _writing(self, write, *args, **kwargs) -> None:
+        """Run one write, safe from Ctrl-C; the first error stops every later write."""
+        if self._failure is not None:
+            raise WriterFailed(f"an earlier write failed ({self._failure})") from self._failure
+        with sigint_deferred():
+            try:
+                write(*args, **kwargs)
+            except Exception as error:
+                self._failure = error
+                raise
+
+    def _describe_run(self, description: "RunDescription") -> None:
+        writer = self._writer
+        writer.add_metadata("run", {"format_version": schemas.FORMAT_VERSION, **description.run_info})
+        writer.add_metadata("config", {"json": description.config_json})
+        writer.add_metadata("versions", description.versions)
+        created = time.time_ns()
+        writer.add_attachment(created, 0, "config.toml", "application/toml", description.config_toml.encode())
+        writer.add_attachment(created, 0, "robot.urdf", "application/xml", description.urdf.encode())
+
+    def _write(self, messages: list[Message], flush: bool) -> None:
+        add = self._writer.add_message
+        for channel, log_ns, data, sequence in messages:
+            add(channel, log_ns, data, log_ns, sequence)
+        if flush:
+            self._writer.flush()
+
+    def _finish(self, metrics: dict, outcome: dict[str, str]) -> None:
+        self._writer.add_metadata("metrics", {"json": json.dumps(_json_safe(metrics), sort_keys=True)})
+        self._writer.add_metadata("outcome", outcome)
+        self._writer.finish()
+
+    def _register(self, topic: schemas.Topic) -> int:
+        descriptor_set = build_file_descriptor_set(topic.message_class).SerializeToString()
+        schema_id = self._writer.register_schema(topic.message_class.DESCRIPTOR.full_name, SchemaEncoding.Protobuf,
+                                                 descriptor_set)
+        return self._writer.register_channel(topic.name, MessageEncoding.Protobuf, schema_id)
+
+
+class RunDescription:
+    """What `describe_run` writes, in plain strings (it crosses to the writer process)."""
+
+    def __init__(self, run_info: dict[str, str], config_json: str, config_toml: str, urdf: str,
+                 versions: dict[str, str]):
+        self.run_info, self.config_json, self.config_toml, self.urdf = run_info, config_json, config_toml, urdf
+        self.versions = versions
+
+    @classmethod
+    def of(cls, run_info: dict[str, str], config: "Config", urdf: str) -> "RunDescription":
+        return cls(run_info, json.dumps(config.to_dict(), sort_keys=True), config.to_toml(), urdf, package_versions())
+
+
+class Link:
+    """One end of the two one-way pipes between the recording process and its writer."""
+
+    def __init__(self, incoming: Connection, outgoing: Connection):
+        self.incoming, self.outgoing = incoming, outgoing
+
+    def send(self, message: tuple) -> None:
+        self.outgoing.send(message)
+
+    def recv(self) -> tuple:
+        return self.incoming.recv()
+
+    def poll(self) -> bool:
+        return self.incoming.poll()
+
+    def close(self) -> None:
+        self.incoming.close()
+        self.outgoing.close()
+
+
+def link_pair() -> tuple[Link, Link]:
+    """(recording process's end, writer's end); the pipe to the writer holds `PIPE_BYTES` where
+    the system allows it, else its default (64 kB)."""
+    command_reader, command_writer = Pipe(duplex=False)
+    reply_reader, reply_writer = Pipe(duplex=False)
+    try:
+        fcntl.fcntl(command_writer.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except OSError:         # above /proc/sys/fs/pipe-max-size, or the user's pipe quota
+        pass
+    return Link(reply_reader, command_writer), Link(command_reader, reply_writer)
+
+
+class WriterProcess:
+    """A `DatasetWriter` in a forked process, fed through a pipe: `write` hands a batch over and
+    returns, `close` returns when the file is closed and renamed."""
+
+    def __init__(self, path: str | Path, run_info: dict[str, str], config: "Config", urdf: str):
+        """Create the temporary file (its errors are raised here), fork the writer, have it write
+        the file's head and the run description, and wait until it has."""
+        self.path = Path(path)
+        self.partial_path = partial_path_of(self.path)
+        self.closed = False
+        description = RunDescription.of(run_info, config, urdf)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        stream = open(self.partial_path, "wb")
+        self._connection, writer_end = link_pair()
+        try:
+            self.pid = _fork_writer(self.path, stream, description, writer_end, self._connection)
+        finally:
+            writer_end.close()
+            stream.close()          # nothing was written to it here: the writer has its own copy
+        try:
+            self.channels: dict[str, int] = self._reply("ready")
+        except WriterFailed:
+            self._stop_waiting()
+            raise
+
+    def write(self, messages: list[Message], flush: bool) -> None:
+        """Hand the messages over; raise `WriterFailed` if an earlier batch failed."""
+        self._raise_reported_failure()
+        self._send("write", messages, flush)
+
+    def close(self, metrics: dict, outcome: dict[str, str]) -> None:
+        """Have the writer write the metrics, outcome and summary and rename the file; wait for it."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._send("close", _json_safe(metrics), outcome)
+            self._reply("closed")
+        finally:
+            self._stop_waiting()
+
+    def _stop_waiting(self) -> None:
+        """Close the pipe (the writer, if still running, closes the file) and wait for the writer."""
+        self._connection.close()
+        try:
+            os.waitpid(self.pid, 0)
+        except ChildProcessError:       # reaped already, where SIGCHLD is ignored
+            pass
+
+    def _send(self, command: str, *args) -> None:
+        try:
+            with sigint_deferred():     # a message cut short would leave the writer's stream unreadable
+                self._connection.send((command, *args))
+        except (BrokenPipeError, ConnectionResetError):
+            self._raise_reported_failure()
+            raise WriterFailed(self._failure_text("the writer process ended")) from None
+
+    def _raise_reported_failure(self) -> None:
+        if self._connection.poll():
+            self._reply("no reply")
+
+    def _reply(self, expected: str):
+        """The writer's answer, if it is `expected`; `WriterFailed` if it reports a failure or ended."""
+        try:
+            kind, content = self._connection.recv()
+        except EOFError:
+            raise WriterFailed(self._failure_text("the writer process ended")) from None
+        if kind == "failed":
+            raise WriterFailed(self._failure_text(content))
+        assert kind == expected, (kind, expected)
+        return content
+
+    def _failure_text(self, reason: str) -> str:
+        return f"writing {self.partial_path} failed: {reason}"
+
+
+def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,
+                 parent_end: Link) -> int:
+    """Fork the writer process with SIGINT and SIGTERM ignored from its first instruction on."""
+    stopping = {signal.SIGINT, signal.SIGTERM}
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, stopping)
+    try:
+        pid = os.fork()
+        if pid == 0:
+            for signum in stopping:
+                signal.signal(signum, signal.SIG_IGN)
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+            parent_end.close()
+            _run_writer(path, stream, description, connection)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+    return pid
+
+
+def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
+    """The writer process's life; it leaves through `os._exit` (no handlers of the parent run)."""
+    gc.disable()        # its messages make no reference cycles; collecting would copy the parent's pages
+    status = 1
+    try:
+        _serve(path, stream, description, connection)
+        status = 0
+    finally:
+        os._exit(status)
+
+
+def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
+    try:
+        dataset = DatasetWriter(path, stream)
+        dataset.describe(description)
+    except Exception as error:
+        connection.send(("failed", _one_line(error)))
+        return
+    connection.send(("ready", dataset.channels))
+    _write_batches(dataset, connection)
+
+
+def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
+    """Write what comes until `close` or the end of the pipe; report the first failed write."""
+    reported = False
+    while True:
+        try:
+            command, *args = connection.recv()
+        except EOFError:
+            dataset.close({}, ENDED_OUTCOME, rename=False)
+            return
+        if command == "close":
+            _close(dataset, args, connection)
+            return
+        try:
+            dataset.write(*args)
+        except Exception as error:
+            if not reported:
+                connection.send(("failed", _one_line(error)))
+                reported = True
+
+
+def _close(dataset: DatasetWriter, args: list, connection: Link) -> None:
+    try:
+        dataset.close(*args)
+    except Exception as error:
+        connection.send(("failed", _one_line(error)))
+    else:
+        connection.send(("closed", None))
+
+
+def _one_line(error: BaseException) -> str:
+    return " ".join(str(error).split()) or type(error).__name__
+
+
+def _json_safe(value):
+    """Metrics as strict JSON: numpy scalars to Python, non-finite floats to null."""
+    if isinstance(value, dict):
+        return {str(key): _json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, np.generic):
+        return _json_safe(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+@cache
+def package_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in VERSIONED_PACKAGES:
+        versions[name] = _version(name)
+    return versions
+
+
+@cache
+def _version(name: str) -> str:
+    try:
+        return package_metadata.version(name)
+    except package_metadata.PackageNotFoundError:
+        return "not installed"
