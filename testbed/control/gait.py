@@ -165,7 +165,7 @@ class GaitGenerator:
                              ("plane_time_constant", search.plane_time_constant),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
-        self.record = record = np.zeros(1, GAIT_STATE)
+        self.state_record = record = np.zeros(1, GAIT_STATE)
         record["feet"], record["liftoff"], record["search_floor"] = self.neutral, self.neutral, -np.inf
         self.state = GaitState(record["feet"][0], record["swinging"][0].view(bool), record["liftoff"][0])
         self.scheduled = record["scheduled"][0].view(bool)
@@ -179,7 +179,7 @@ class GaitGenerator:
 
     @property
     def stopping(self) -> bool:
-        return bool(self.record["stopping"][0])
+        return bool(self.state_record["stopping"][0])
 
     def phase(self, t: float) -> np.ndarray:
         """(6,) phase of each leg in [0, 1): stance below the duty factor, swing above. At the
@@ -199,7 +199,7 @@ class GaitGenerator:
 
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
-        self.record["stopping"] = True
+        self.state_record["stopping"] = True
 
     def clock(self, t: float) -> float:
         """Gait time at run time t: the time spent waiting for the ground does not count."""
@@ -213,12 +213,12 @@ class GaitGenerator:
         target had got to. Without `contact` the gait follows its schedule blindly."""
         twist, phase = (command.vx, command.vy, command.wz), np.empty(6)
         if self.adaptation is None or contact is None:
-            _blind_step(t, dt, twist, self.pattern.walks, self.parameters, self.record, phase)
+            _blind_step(t, dt, twist, self.pattern.walks, self.parameters, self.state_record, phase)
             self._stepped_phase = (t, phase)
             return self.state.feet.copy()
         gait_time = self.clock(t)
         searched, plane_shift = _adaptive_step(gait_time, dt, twist, np.asarray(contact, dtype=bool), measured,
-                                               self.parameters, self.record, phase)
+                                               self.parameters, self.state_record, phase)
         self._stepped_phase = (gait_time, phase)
         if searched:
             self.waited += dt           # the clock waits: no leg lifts, the body does not move

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.model.errors import ConfigError
+from testbed.model.errors import ConfigError, PluginFailure
 from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.control.posture import (POSTURE_LAWS, PiLoop, PiPostureLaw, PostureCorrection, PostureMeasurement,
-                                     body_frame_targets, correction_rotation, gait_frame_positions, kinematic_height,
-                                     tilted_targets, untilted_positions)
+                                     body_frame_targets, checked_correction, correction_rotation, gait_frame_positions,
+                                     kinematic_height, tilted_targets, untilted_positions)
 from testbed.runtime.runner import run
 
 CFG = config.load()
@@ -78,6 +78,15 @@ def test_the_laws_registry_has_the_pi_law_and_the_config_names_it():
     assert CFG.posture.law == "pi"
     with pytest.raises(ConfigError, match="unknown posture law 'pd'"):
         config.load(None, {"posture": {"law": "pd"}})
+
+
+def test_a_laws_answer_must_be_three_finite_numbers():
+    assert checked_correction((0.01, -0.02, 0.003), "my_law") == PostureCorrection(0.01, -0.02, 0.003)
+    assert checked_correction(np.array([0.0, 0.0, 0.0]), "my_law") == PostureCorrection()
+    for answer, message in ((None, "returned None"), ((0.0, 0.0), "returned \\(0.0, 0.0\\), expected"),
+                            ((math.nan, 0.0, 0.0), "returned a non-finite"), (("a", 0, 0), "returned")):
+        with pytest.raises(PluginFailure, match=f"^posture law 'my_law' {message}"):
+            checked_correction(answer, "my_law")
 
 
 def test_correction_turns_the_body_and_the_inverse_is_exact():
