@@ -7,8 +7,7 @@ from typing import NamedTuple
 import numpy as np
 
 class Command(NamedTuple):
-    """What the controller and gait commanded at one tick. (Command and Tick are named tuples: one
-    of each is built per physics step, at half the cost of a frozen dataclass.)"""
+    """What the controller and gait commanded at one tick (a named tuple: one is built per physics step)."""
     t: float
     phase: np.ndarray            # (6,) gait phase of each leg in [0, 1)
     swinging: np.ndarray         # (6,) bool

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from testbed.control.posture import POSTURE_LAWS
 from testbed.control.startup import CalibrationPoses
 from testbed.model.validation import finite, non_negative, positive, require
 
@@ -59,7 +60,8 @@ class GaitConfig:
 
 @dataclass(frozen=True)
 class PostureConfig:
-    """The posture controller's gains and limits and the gait's terrain adaptation (docs/control.md)."""
+    """The posture law, the built-in law's gains and limits, and the gait's terrain adaptation (docs/control.md)."""
+    law: str                # a registered posture law (`pi`) or MODULE:CLASS
     tilt_kp: float
     tilt_ki: float
     height_kp: float
@@ -72,6 +74,7 @@ class PostureConfig:
     touchdown_phase: float
 
     def __post_init__(self) -> None:
+        POSTURE_LAWS.check_spec(self.law)
         non_negative("posture gains", self.tilt_kp, self.tilt_ki, self.height_kp, self.height_ki)
         require(0 < self.max_tilt_correction_deg <= 30,
                  f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")

@@ -34,7 +34,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from testbed.model.kinematics import fused_multiply_add
 from testbed.model.registry import Registry
 
 
@@ -112,11 +111,37 @@ class TerrainAdaptation:
         return TerrainAdaptation(search_speed, search_depth, 1.0, math.inf)
 
 
+# The gait's constants and its state, each one record (a one-element structured array) that the
+# compiled steps read and update by field name. Flags are stored as uint8 (numba's records hold no
+# bool arrays); the generator's Python side sees them as bool arrays.
+GAIT_PARAMETERS = np.dtype([
+    ("period", "f8"),                   # s per cycle
+    ("duty", "f8"),                     # stance share of the cycle
+    ("lead", "f8"),                     # s, the swing command runs this far ahead of the gait clock
+    ("stance_time", "f8"),              # s, duty * period
+    ("swing_height", "f8"),             # m
+    ("neutral_height", "f8"),           # m, mean height of the start stance's feet
+    ("search_speed", "f8"),             # TerrainAdaptation's fields
+    ("search_depth", "f8"),
+    ("touchdown_phase", "f8"),
+    ("plane_time_constant", "f8"),
+    ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
+    ("neutral", "f8", (6, 3)),          # the start stance, body frame
+])
+GAIT_STATE = np.dtype([
+    ("feet", "f8", (6, 3)),             # current foot targets, body frame
+    ("liftoff", "f8", (6, 3)),          # where each swing began
+    ("search_floor", "f8", 6),          # m, lowest a swing foot reaches down for ground
+    ("swinging", "u1", 6),              # in the air
+    ("scheduled", "u1", 6),             # the schedule's swings at the last step
+    ("searching", "u1", 6),             # reaching down for ground the clock waits for
+    ("stopping", "u1"),                 # no new swings
+])
+
+
 class GaitGenerator:
-    """The gait's state lives in arrays that one compiled function per tick updates in place
-    (`_adaptive_step`, `_blind_step`). Compiled because the same steps as numpy code on (6, 3)
-    arrays cost 78 us a tick (some 30 calls on six feet and a 3x3 solve) against 4 us; they give
-    the same numbers bit for bit."""
+    """The gait's state lives in a record that one compiled function per tick updates in place
+    (`_adaptive_step`, `_blind_step`)."""
 
     def __init__(self, name: str, neutral: np.ndarray, period: float, swing_height: float,
                  adaptation: TerrainAdaptation | None = None, lead: float = 0.0):
@@ -124,9 +149,6 @@ class GaitGenerator:
         self.lead = lead            # s, the swing command runs this far ahead of the gait clock
         self.adaptation = adaptation
         self.waited = 0.0           # s the gait clock stood still for feet searching the ground
-        self.scheduled = np.zeros(6, bool)
-        self.search_floor = np.full(6, -np.inf)
-        self.searching = np.zeros(6, bool)     # feet reaching down for ground the clock waits for
         self.frame_drop = 0.0       # m the ground has moved down in the gait frame (walk-plane following)
         self.neutral = np.asarray(neutral, dtype=float)
         self.neutral_height = float(self.neutral[:, 2].mean())
@@ -134,18 +156,30 @@ class GaitGenerator:
         self.swing_height = swing_height
         self.pattern = pattern = GAITS.resolve(name)
         self.duty, self.swing_start = pattern.duty, np.asarray(pattern.swing_start, dtype=float)
-        self.state = GaitState(self.neutral.copy(), np.zeros(6, bool), self.neutral.copy())
-        self.stopping = False
+        search = adaptation or TerrainAdaptation(0.0, 0.0, 1.0, math.inf)
+        self.parameters = np.zeros(1, GAIT_PARAMETERS)
+        for field, value in (("period", period), ("duty", self.duty), ("lead", lead),
+                             ("stance_time", self.stance_time), ("swing_height", swing_height),
+                             ("neutral_height", self.neutral_height), ("search_speed", search.search_speed),
+                             ("search_depth", search.search_depth), ("touchdown_phase", search.touchdown_phase),
+                             ("plane_time_constant", search.plane_time_constant),
+                             ("swing_start", self.swing_start), ("neutral", self.neutral)):
+            self.parameters[field] = value
+        self.state_record = record = np.zeros(1, GAIT_STATE)
+        record["feet"], record["liftoff"], record["search_floor"] = self.neutral, self.neutral, -np.inf
+        self.state = GaitState(record["feet"][0], record["swinging"][0].view(bool), record["liftoff"][0])
+        self.scheduled = record["scheduled"][0].view(bool)
+        self.search_floor = record["search_floor"][0]
+        self.searching = record["searching"][0].view(bool)
         self._stepped_phase = (math.nan, np.zeros(6))     # (gait time, phase) of the last step
-        if adaptation is not None:
-            # The adaptive step's constant scalars in one array (numba unboxes each argument).
-            self._adaptive_constants = np.array([
-                period, self.duty, lead, self.stance_time, swing_height, self.neutral_height, adaptation.search_speed,
-                adaptation.search_depth, adaptation.touchdown_phase, adaptation.plane_time_constant])
 
     @property
     def stance_time(self) -> float:
         return self.duty * self.period
+
+    @property
+    def stopping(self) -> bool:
+        return bool(self.state_record["stopping"][0])
 
     def phase(self, t: float) -> np.ndarray:
         """(6,) phase of each leg in [0, 1): stance below the duty factor, swing above. At the
@@ -153,7 +187,7 @@ class GaitGenerator:
         stepped_time, stepped_phase = self._stepped_phase
         if t == stepped_time:
             return stepped_phase
-        return _phase(t, self.period, self.swing_start, self.duty, np.empty(6))
+        return _phase(t, self.parameters, np.empty(6))
 
     def scheduled_swing(self, t: float) -> np.ndarray:
         if not self.pattern.walks:
@@ -161,11 +195,11 @@ class GaitGenerator:
         return self.phase(t) >= self.duty
 
     def swing_progress(self, t: float) -> np.ndarray:
-        return _progress(self.phase(t), self.duty, self.period, self.lead, np.empty(6))
+        return _progress(self.phase(t), self.parameters, np.empty(6))
 
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
-        self.stopping = True
+        self.state_record["stopping"] = True
 
     def clock(self, t: float) -> float:
         """Gait time at run time t: the time spent waiting for the ground does not count."""
@@ -177,51 +211,46 @@ class GaitGenerator:
         and terrain adaptation use `contact` (the foot sensors) and `measured`, the feet where the
         joint encoders put them (gait frame): a foot lands where it touched, not where its lagging
         target had got to. Without `contact` the gait follows its schedule blindly."""
-        state, phase = self.state, np.empty(6)
+        twist, phase = (command.vx, command.vy, command.wz), np.empty(6)
         if self.adaptation is None or contact is None:
-            _blind_step(t, dt, command.vx, command.vy, command.wz, self.pattern.walks, self.stopping,
-                        self.period, self.swing_start, self.duty, self.lead, self.stance_time, self.swing_height,
-                        self.neutral, phase, state.feet, state.swinging, state.liftoff)
+            _blind_step(t, dt, twist, self.pattern.walks, self.parameters, self.state_record, phase)
             self._stepped_phase = (t, phase)
-            return state.feet.copy()
-        adaptation = self.adaptation
-        has_measured = measured is not None
+            return self.state.feet.copy()
         gait_time = self.clock(t)
-        searched, plane_shift = _adaptive_step(
-            gait_time, dt, command.vx, command.vy, command.wz, np.asarray(contact, dtype=bool),
-            measured if has_measured else state.feet, has_measured, self.stopping, self._adaptive_constants,
-            self.swing_start, self.neutral, phase, state.feet, state.swinging, state.liftoff, self.scheduled,
-            self.search_floor, self.searching)
+        searched, plane_shift = _adaptive_step(gait_time, dt, twist, np.asarray(contact, dtype=bool), measured,
+                                               self.parameters, self.state_record, phase)
         self._stepped_phase = (gait_time, phase)
         if searched:
             self.waited += dt           # the clock waits: no leg lifts, the body does not move
-        elif adaptation.follows_terrain:
+        elif self.adaptation.follows_terrain:
             self.frame_drop += plane_shift
-        return state.feet.copy()
+        return self.state.feet.copy()
 
 
 # ------------------------------------------------------------------ compiled steps
-# One call per tick with the gait's arrays, updated in place. Same operations in the same order as
-# numpy code on the whole arrays; the walk plane's sums and solve as numpy's BLAS and LAPACK do them.
+# One call per tick with the gait's records, updated in place.
 
 @njit(cache=True)
-def _phase(t, period, swing_start, duty, out):
+def _phase(t, parameters, out):
+    """(6,) phase of each leg at gait time t, into `out`."""
+    p = parameters[0]
     for leg in range(6):
-        # Rounded to 1e-9 of a cycle (as np.round: rint of the scaled value) so that legs whose
-        # swings meet end-to-end never overlap for a tick through floating-point error at the boundary.
-        out[leg] = (np.rint((t / period - swing_start[leg] + duty) * 1e9) / 1e9) % 1.0
+        # Rounded to 1e-9 of a cycle so that legs whose swings meet end-to-end never overlap for a
+        # tick through floating-point error at the boundary.
+        out[leg] = (np.rint((t / p.period - p.swing_start[leg] + p.duty) * 1e9) / 1e9) % 1.0
     return out
 
 
 @njit(cache=True)
-def _progress(phase, duty, period, lead, out):
+def _progress(phase, parameters, out):
     """Where each swing's command is on its ellipse: the phase's share of the swing plus the
     lead, so that the lagging servos put the foot itself on the ellipse about on schedule and
     on the ground by the scheduled touch-down; the command then waits at the touch-down point."""
-    ahead = lead / ((1.0 - duty) * period)
+    p = parameters[0]
+    ahead = p.lead / ((1.0 - p.duty) * p.period)
     for leg in range(6):
-        share = (phase[leg] - duty) / (1.0 - duty) + ahead
-        share = share if share > 0.0 else 0.0       # np.clip's order: max, then min
+        share = (phase[leg] - p.duty) / (1.0 - p.duty) + ahead
+        share = share if share > 0.0 else 0.0
         out[leg] = share if share < 1.0 else 1.0
     return out
 
@@ -241,14 +270,17 @@ def _foot_velocity(feet, vx, vy, wz):
 
 
 @njit(cache=True)
-def _touchdown(neutral, stance_time, vx, vy, wz):
-    """Half a step ahead of the neutral point, for the current command."""
-    return neutral + 0.5 * stance_time * _foot_velocity(neutral, vx, vy, wz)
+def _touchdown(parameters, twist):
+    """Half a step ahead of the neutral point, for the current command (vx, vy, wz)."""
+    p = parameters[0]
+    vx, vy, wz = twist
+    return p.neutral + 0.5 * p.stance_time * _foot_velocity(p.neutral, vx, vy, wz)
 
 
 @njit(cache=True)
-def _move_stance(feet, stance, vx, vy, wz, dt):
+def _move_stance(feet, stance, twist, dt):
     # A stance foot is fixed on the ground: in the body frame it moves against the body twist.
+    vx, vy, wz = twist
     for leg in range(6):
         if stance[leg]:
             velocity_x, velocity_y = _ground_velocity(feet[leg, 0], feet[leg, 1], vx, vy, wz)
@@ -273,82 +305,95 @@ def _move_swing(feet, liftoff, progress, swing, touchdown, swing_height):
 
 
 @njit(cache=True)
-def _blind_step(t, dt, vx, vy, wz, walking, stopping, period, swing_start, duty, lead, stance_time, swing_height,
-                neutral, phase, feet, swinging, liftoff):
-    """The gait on its schedule alone: no foot sensors, no terrain. `phase` receives the legs' phases."""
-    _phase(t, period, swing_start, duty, phase)
-    swing = phase >= duty
+def _blind_step(t, dt, twist, walking, parameters, state, phase):
+    """The gait on its schedule alone: no foot sensors, no terrain. `twist`: (vx, vy, wz);
+    `parameters`, `state`: the GAIT_PARAMETERS and GAIT_STATE records; `phase` receives the legs'
+    phases."""
+    p, s = parameters[0], state[0]
+    feet, liftoff = s.feet, s.liftoff
+    swinging = s.swinging != 0
+    _phase(t, parameters, phase)
+    swing = phase >= p.duty
     if not walking:
         swing[:] = False
-    if stopping:
+    if s.stopping:
         swing &= swinging       # no new swings; running ones finish
-    touchdown = _touchdown(neutral, stance_time, vx, vy, wz)
+    touchdown = _touchdown(parameters, twist)
     for leg in range(6):
         if swing[leg] and not swinging[leg]:
             liftoff[leg] = feet[leg]
         elif swinging[leg] and not swing[leg]:
             # The last swing tick falls just short of u = 1: a landing foot ends its ellipse first.
             feet[leg] = touchdown[leg]
-    _move_stance(feet, ~swing, vx, vy, wz, dt)
+    _move_stance(feet, ~swing, twist, dt)
     if swing.any():
-        _move_swing(feet, liftoff, _progress(phase, duty, period, lead, np.empty(6)), swing, touchdown, swing_height)
-    swinging[:] = swing
+        _move_swing(feet, liftoff, _progress(phase, parameters, np.empty(6)), swing, touchdown, p.swing_height)
+    _store_flags(s.swinging, swing)
 
 
 @njit(cache=True)
-def _adaptive_step(t, dt, vx, vy, wz, contact, measured, has_measured, stopping, constants, swing_start, neutral,
-                   phase, feet, swinging, liftoff, scheduled, search_floor, searching):
-    """The gait with touch-down confirmation and terrain adaptation, at gait time t (`phase`
-    receives the legs' phases). `constants`: period, duty, lead, stance time, swing height,
-    neutral height, then the adaptation's search speed, search depth, touch-down phase and walk
-    plane time constant. Returns (whether feet searched the ground, so that the clock waited; the
-    gait frame's vertical shift)."""
-    period, duty, lead, stance_time, swing_height, neutral_height = constants[0:6]
-    search_speed, search_depth, touchdown_phase, plane_time_constant = constants[6:10]
-    follows_terrain = math.isfinite(plane_time_constant)
-    _phase(t, period, swing_start, duty, phase)
-    now = phase >= duty
-    if stopping:
+def _store_flags(target, flags):
+    for leg in range(6):
+        target[leg] = 1 if flags[leg] else 0
+
+
+@njit(cache=True)
+def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
+    """The gait with touch-down confirmation and terrain adaptation, at gait time t. `twist`:
+    (vx, vy, wz); `contact`: the foot sensors; `measured`: the feet where the encoders put them
+    (gait frame), or None; `parameters`, `state`: the GAIT_PARAMETERS and GAIT_STATE records;
+    `phase` receives the legs' phases. Returns (whether feet searched the ground, so that the
+    clock waited; the gait frame's vertical shift)."""
+    p, s = parameters[0], state[0]
+    feet, liftoff, search_floor = s.feet, s.liftoff, s.search_floor
+    swinging, scheduled = s.swinging != 0, s.scheduled != 0
+    follows_terrain = math.isfinite(p.plane_time_constant)
+    _phase(t, parameters, phase)
+    now = phase >= p.duty
+    if s.stopping:
         now &= scheduled | swinging
     lifting = now & ~scheduled
-    progress = _progress(phase, duty, period, lead, np.empty(6))
+    progress = _progress(phase, parameters, np.empty(6))
     # Ground found in the second part of a swing, or at or after its scheduled end: land there.
-    touched = swinging & contact & (~now | (progress >= touchdown_phase))
-    if has_measured:
+    touched = swinging & contact & (~now | (progress >= p.touchdown_phase))
+    if measured is not None:
         _copy_rows(feet, measured, touched)     # where it touched, not where its lagging target got to
     elif not follows_terrain:
-        _copy_rows(feet, _touchdown(neutral, stance_time, vx, vy, wz), touched)     # the ellipse's end
+        _copy_rows(feet, _touchdown(parameters, twist), touched)     # the ellipse's end
     swinging &= ~touched
-    searching[:] = swinging & ~now
+    searching = swinging & ~now
+    _store_flags(s.searching, searching)
     if searching.any():
-        _search(feet, swinging, searching, search_floor, search_speed * dt)
+        _search(feet, swinging, searching, search_floor, p.search_speed * dt)
+        _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
     swinging |= lifting
-    scheduled[:] = now
-    touchdown = _touchdown(neutral, stance_time, vx, vy, wz)
+    _store_flags(s.swinging, swinging)
+    _store_flags(s.scheduled, now)
+    touchdown = _touchdown(parameters, twist)
     plane_height = 0.0
     if follows_terrain:
-        plane_height, slope_x, slope_y = _walk_plane(feet, ~swinging, neutral_height)
+        plane_height, slope_x, slope_y = _walk_plane(feet, ~swinging, p.neutral_height)
         for leg in range(6):
-            # numpy's (6, 2) @ (2,) of strided rows: OpenBLAS's dgemv sums the second product first.
-            touchdown[leg, 2] = plane_height + fused_multiply_add(touchdown[leg, 0], slope_x,
-                                                                  touchdown[leg, 1] * slope_y)
-    _move_stance(feet, ~swinging, vx, vy, wz, dt)
+            touchdown[leg, 2] = plane_height + touchdown[leg, 0] * slope_x + touchdown[leg, 1] * slope_y
+    _move_stance(feet, ~swinging, twist, dt)
     if not follows_terrain:
-        _settle_stance(feet, swinging, neutral, dt)
+        _settle_stance(feet, swinging, p.neutral, dt)
     in_swing = swinging & now
     blocked = in_swing & contact & (progress < RISING_HALF)
-    if blocked.any():
-        _hold_blocked(liftoff, blocked, progress, touchdown, measured if has_measured else feet, vx, vy, wz, dt)
-    _move_swing(feet, liftoff, progress, in_swing, touchdown, swing_height)
+    if blocked.any() and measured is None:
+        _hold_blocked(liftoff, blocked, progress, touchdown, feet, twist, dt)
+    elif blocked.any():
+        _hold_blocked(liftoff, blocked, progress, touchdown, measured, twist, dt)
+    _move_swing(feet, liftoff, progress, in_swing, touchdown, p.swing_height)
     for leg in range(6):
         if swinging[leg]:
-            search_floor[leg] = touchdown[leg, 2] - search_depth
+            search_floor[leg] = touchdown[leg, 2] - p.search_depth
     if not follows_terrain:
         return False, 0.0
-    return False, _follow_walk_plane(feet, liftoff, search_floor, plane_height - neutral_height,
-                                     min(1.0, dt / plane_time_constant))
+    return False, _follow_walk_plane(feet, liftoff, search_floor, plane_height - p.neutral_height,
+                                     min(1.0, dt / p.plane_time_constant))
 
 
 @njit(cache=True)
@@ -359,12 +404,13 @@ def _copy_rows(target, source, rows):
 
 
 @njit(cache=True)
-def _hold_blocked(liftoff, blocked, progress, touchdown, feet, vx, vy, wz, dt):
+def _hold_blocked(liftoff, blocked, progress, touchdown, feet, twist, dt):
     """Elevator reflex (Cruse's Walknet): a swing foot that meets something while it rises, such
     as a step's riser, stops moving forward over the ground where it is (`feet`: the encoders')
     and keeps rising until it is clear, instead of pushing into the obstacle and being dragged
     up it. The swing's start is moved so that the rest of the ellipse begins where the foot is
     held: once clear, it goes on to its touch-down point without a jump."""
+    vx, vy, wz = twist
     for leg in range(6):
         if blocked[leg]:
             velocity_x, velocity_y = _ground_velocity(feet[leg, 0], feet[leg, 1], vx, vy, wz)
@@ -392,7 +438,7 @@ def _search(feet, swinging, searching, search_floor, drop):
     for leg in range(6):
         if searching[leg]:
             lowered = feet[leg, 2] - drop
-            keep = lowered >= search_floor[leg] or math.isnan(lowered)      # np.maximum, NaN included
+            keep = lowered >= search_floor[leg] or math.isnan(lowered)
             feet[leg, 2] = lowered if keep else search_floor[leg]
             if feet[leg, 2] <= search_floor[leg]:
                 swinging[leg] = False
@@ -401,61 +447,37 @@ def _search(feet, swinging, searching, search_floor, drop):
 @njit(cache=True)
 def _walk_plane(feet, stance, neutral_height):
     """(c0, cx, cy) of the stance feet's least-squares plane z = c0 + cx x + cy y (gait frame);
-    the neutral stance's level with fewer than three stance feet.
-
-    The normal equations D^T D c = D^T z of the design rows D = (1, x, y), as numpy's `@` and
-    `linalg.solve` compute them: sums of products by fused multiply-adds in row order (OpenBLAS's
-    dsyrk and dgemv), then LU with partial pivoting (its dgetf2: the column scaled by the
-    reciprocal of the pivot) and the two triangular solves (dtrsv: the upper one divides)."""
+    the neutral stance's level with fewer than three stance feet. The normal equations
+    D^T D c = D^T z of the design rows D = (1, x, y), solved by Cramer's rule."""
+    if stance.sum() < 3:
+        return neutral_height, 0.0, 0.0
     normal, right = np.zeros((3, 3)), np.zeros(3)
-    first = True
     for leg in range(6):
         if stance[leg]:
             row = (1.0, feet[leg, 0], feet[leg, 1])
             for i in range(3):
                 for j in range(3):
-                    normal[i, j] = row[i] * row[j] if first else fused_multiply_add(row[i], row[j], normal[i, j])
-                right[i] = row[i] * feet[leg, 2] if first else fused_multiply_add(row[i], feet[leg, 2], right[i])
-            first = False
-    if stance.sum() < 3:
-        return neutral_height, 0.0, 0.0
+                    normal[i, j] += row[i] * row[j]
+                right[i] += row[i] * feet[leg, 2]
     return _solve3(normal, right)
 
 
 @njit(cache=True)
+def _determinant3(a):
+    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
+            - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+
+
+@njit(cache=True)
 def _solve3(a, b):
-    """x of a x = b for a 3x3 `a` (overwritten with its LU factors) in LAPACK dgesv's steps."""
-    pivots = np.zeros(3, np.int64)
-    for j in range(3):
-        for i in range(j):                      # the earlier row swaps, on this column
-            a[i, j], a[pivots[i], j] = a[pivots[i], j], a[i, j]
-        if j == 2:                              # forward substitution within the column
-            a[1, 2] -= a[1, 0] * a[0, 2]
-        for i in range(j, 3):                   # this column less the factors found so far
-            if j == 1:
-                a[i, 1] -= a[i, 0] * a[0, 1]
-            elif j == 2:
-                a[i, 2] -= fused_multiply_add(a[i, 1], a[1, 2], a[i, 0] * a[0, 2])
-        pivot = j
-        for i in range(j + 1, 3):
-            if abs(a[i, j]) > abs(a[pivot, j]):
-                pivot = i
-        pivots[j] = pivot
-        for k in range(j + 1):
-            a[j, k], a[pivot, k] = a[pivot, k], a[j, k]
-        reciprocal = 1.0 / a[j, j]
-        for i in range(j + 1, 3):
-            a[i, j] *= reciprocal
-    x = b.copy()
-    for i in range(3):
-        x[i], x[pivots[i]] = x[pivots[i]], x[i]
-    for i in range(3):                          # unit lower triangle, forward
-        for k in range(i + 1, 3):
-            x[k] = fused_multiply_add(-x[i], a[k, i], x[k])
-    for i in range(2, -1, -1):                  # upper triangle, backward
-        x[i] /= a[i, i]
-        for k in range(i):
-            x[k] = fused_multiply_add(-x[i], a[k, i], x[k])
+    """x of a x = b for a 3x3 `a` (Cramer's rule)."""
+    determinant = _determinant3(a)
+    x = np.empty(3)
+    for column in range(3):
+        replaced = a.copy()
+        replaced[:, column] = b
+        x[column] = _determinant3(replaced) / determinant
     return x[0], x[1], x[2]
 
 

@@ -25,16 +25,14 @@ class TargetWalker:
         self.arrived = False
 
     def command(self, pose: tuple[float, float, float]) -> Twist:
-        # Python floats, and math's sin and cos (the C library's, as numpy's); numpy's hypot and
-        # arctan2 stay: on this CPU they are its own SIMD code, which can differ in the last bit.
         if self.arrived:
             return Twist()
         x, y, yaw = pose
         target_x, target_y = self.target.tolist()
         offset_x, offset_y = target_x - x, target_y - y
-        distance = float(np.hypot(offset_x, offset_y))
-        bearing = float(np.arctan2(offset_y, offset_x))
-        heading_error = float(np.arctan2(math.sin(bearing - yaw), math.cos(bearing - yaw)))
+        distance = math.hypot(offset_x, offset_y)
+        bearing = math.atan2(offset_y, offset_x)
+        heading_error = math.atan2(math.sin(bearing - yaw), math.cos(bearing - yaw))
         if distance < self.config.target_tolerance and math.cos(heading_error) <= 0.0:
             self.arrived = True
             return Twist()

@@ -87,10 +87,8 @@ class LegOdometry:
         # Feet put down since the last reading (at the first reading, every stance foot) take
         # this reading's tibia pitch as their planted pitch.
         before = self._reference.stance if self._reference is not None else NO_FEET
-        g = self.geometry
         finite, table = _reading_table(joint_positions, stance, before, self._planted_pitch, self.foot_radius,
-                                       FOOT_POSITION_STD**2, g.base_cos, g.base_sin, g.base_angle, g.base_distance,
-                                       g.femur, g.tibia)
+                                       FOOT_POSITION_STD**2, self.geometry.arrays)
         return _Reading(table, stance, heading) if finite else None
 
     def _advance(self, before: _Reading, after: _Reading, samples: int) -> None:
@@ -145,17 +143,13 @@ def _kabsch_motion(before: np.ndarray, after: np.ndarray, weights: np.ndarray) -
     return turn, shift
 
 
-# The per-sample arithmetic of the gyro path is compiled: at every encoder sample it was two dozen
-# numpy calls on six feet (~40 us; 16 us with the table alone compiled, 4.6 us now). Same operations
-# in the same order: np.dot is BLAS's dgemv, as numpy's `@`; math.cos and math.sin are the C
-# library's, as numpy's on a scalar.
+# The per-sample arithmetic of the gyro path is compiled: it runs at every encoder sample.
 @njit(cache=True)
-def _reading_table(q, stance, stance_before, planted_pitch, foot_radius, variance, base_cos, base_sin, base_angle,
-                   base_distance, a2, a3):
-    """(whether the reading is finite, its table): per foot its centre x, y (eq. 2) and the trust
-    in it staying put, 1 / (variance + rolled^2), rolled being the foot radius times the tibia's
-    pitch change since the foot was planted. Feet in `stance` but not in `stance_before` are
-    planted now: `planted_pitch` takes their pitch."""
+def _reading_table(q, stance, stance_before, planted_pitch, foot_radius, variance, legs):
+    """(whether the reading is finite, its table): per foot its centre x, y (eq. 2, geometry from
+    the LEG_ARRAYS record `legs`) and the trust in it staying put, 1 / (variance + rolled^2),
+    rolled being the foot radius times the tibia's pitch change since the foot was planted. Feet
+    in `stance` but not in `stance_before` are planted now: `planted_pitch` takes their pitch."""
     table = np.empty((6, 3))
     for angle in q:
         if not math.isfinite(angle):
@@ -163,7 +157,7 @@ def _reading_table(q, stance, stance_before, planted_pitch, foot_radius, varianc
     for leg in range(6):
         if stance[leg] and not stance_before[leg]:
             planted_pitch[leg] = q[3 * leg + 1] + q[3 * leg + 2]
-    feet = foot_positions_arrays(q, base_cos, base_sin, base_angle, base_distance, a2, a3)
+    feet = foot_positions_arrays(q, legs)
     for leg in range(6):
         rolled = foot_radius * (q[3 * leg + 1] + q[3 * leg + 2] - planted_pitch[leg])
         table[leg, 0], table[leg, 1] = feet[leg, 0], feet[leg, 1]
@@ -181,16 +175,17 @@ def _shift_for_turn(before, after, stance_before, stance_after, turn):
         count += stance_before[leg] and stance_after[leg]
     if count == 0:
         return False, 0.0, 0.0
-    feet_before, feet_after, weights = np.empty((count, 2)), np.empty((count, 2)), np.empty(count)
-    row = 0
+    total = 0.0
+    centre_before, centre_after = np.zeros(2), np.zeros(2)
     for leg in range(6):
         if stance_before[leg] and stance_after[leg]:
-            feet_before[row, 0], feet_before[row, 1] = before[leg, 0], before[leg, 1]
-            feet_after[row, 0], feet_after[row, 1] = after[leg, 0], after[leg, 1]
-            weights[row] = before[leg, 2] + after[leg, 2]
-            row += 1
-    w = weights / weights.sum()
-    centre_before, centre_after = np.dot(w, feet_before), np.dot(w, feet_after)
+            weight = before[leg, 2] + after[leg, 2]
+            total += weight
+            for axis in range(2):
+                centre_before[axis] += weight * before[leg, axis]
+                centre_after[axis] += weight * after[leg, axis]
+    centre_before /= total
+    centre_after /= total
     c, s = math.cos(turn), math.sin(turn)
     return (True, centre_before[0] - (c * centre_after[0] - s * centre_after[1]),
             centre_before[1] - (s * centre_after[0] + c * centre_after[1]))
@@ -236,13 +231,11 @@ class GyroHeading:
         self._last_t = t
 
 
-# Compiled: at the IMU rate the mounting product and the rotation helpers cost 6.4 us a sample
-# (3.2 with the helpers on Python floats), against 0.9.
+# Compiled: it runs at the IMU rate.
 @njit(cache=True)
 def _turn(attitude, body_from_sensor, gyro, bias, dt):
     """(whether the rate is finite, the new yaw): `attitude` (x, y, z, w) followed, in place, by the
-    body-frame rotation (body_from_sensor gyro - bias) dt: numpy's `@` in its order, then
-    testbed.model.spatial' own helpers (compiled in), so the same numbers to the last bit
+    body-frame rotation (body_from_sensor gyro - bias) dt, through testbed.model.spatial's helpers
     (tests/testbed/test_odometry_and_stability.py compares them)."""
     rate = matrix_times_vector(body_from_sensor, gyro, np.empty(3))
     for axis in range(3):

@@ -1,34 +1,79 @@
-"""Posture controller: keep the body level with respect to gravity and at a constant height above
+"""Posture control: keep the body level with respect to gravity and at a constant height above
 the ground under it, by moving the feet's body-frame targets before inverse kinematics.
 
-Inputs are the estimator's roll and pitch (with respect to gravity) and its body height above the
-stance feet's plane; an estimator without a terrain plane (the attitude-only baselines) gets the
-height from the joint encoders through forward kinematics instead. Never ground truth.
+A posture law turns what the robot measures (the estimator's roll and pitch with respect to
+gravity, and its body height above the stance feet's plane; an estimator without a terrain plane
+gets the height from the joint encoders through forward kinematics) into a correction: a pose of
+the body relative to the gait's frame, rotations about the body's x and y axes and a vertical
+offset. Never ground truth. The built-in law (`pi`) is a discrete PI loop per axis
+(docs/control.md: plant, design and margins); another law plugs in through `posture.law`.
 
-The correction is a pose of the body relative to the gait's frame: rotations about the body's x
-and y axes and a vertical offset, each driven by a discrete PI loop (docs/control.md: plant,
-design and margins). A foot target p in the gait frame becomes R^T (p - d) in the body frame,
-with R = Ry(pitch correction) Rx(roll correction) and d = (0, 0, height correction): the feet stay
-on the ground, so the body turns by R and rises by d.
+A foot target p in the gait frame becomes R^T (p - d) in the body frame, with
+R = Ry(pitch correction) Rx(roll correction) and d = (0, 0, height correction): the feet stay on
+the ground, so the body turns by R and rises by d.
 """
 
 from __future__ import annotations
 
+import abc
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
-from numba.extending import register_jitable
 
-from testbed.control.config import PostureConfig
+from estimators.base import Estimate
+from testbed.model.errors import PluginFailure
 from testbed.model.kinematics import LegGeometry, foot_positions, rows_times_matrix
+from testbed.model.registry import Registry
 
 
 class PostureMeasurement(NamedTuple):
-    roll: float                 # rad, body with respect to gravity
-    pitch: float                # rad
-    height: float | None        # m, body origin above the stance feet's ground plane, vertically
+    """What a posture law is given each tick: errors from the level body at the stance height."""
+    roll: float                     # rad, body with respect to gravity (the estimate's)
+    pitch: float                    # rad
+    height_error: float | None      # m, body height above the stance feet's plane less robot.stance_height;
+                                    # None when not measurable (fewer than three stance feet)
+
+
+class PostureCorrection(NamedTuple):
+    """The body's pose relative to the gait frame that a posture law commands."""
+    roll: float = 0.0               # rad, about the body's x axis
+    pitch: float = 0.0              # rad, about its y axis
+    height: float = 0.0             # m, up
+
+
+class PostureLaw(abc.ABC):
+    """A posture law, built-in or a user's plugin (`posture.law = "MODULE:CLASS"`).
+
+    A class method `from_config(config)` receives the run's `Config` when present; otherwise the
+    class is built with no arguments. The pilot calls `update` once per control tick
+    (`run.time_step`) from the end of the start-up on (`gait.startup_time`), whenever the
+    estimator has given an estimate; before that, and between updates, the last correction holds
+    (zero at first). The pilot keeps the gait, its terrain adaptation and the inverse kinematics."""
+
+    @abc.abstractmethod
+    def update(self, t: float, measurement: PostureMeasurement, estimate: Estimate,
+               limited: bool) -> PostureCorrection | tuple[float, float, float]:
+        """The correction (roll rad, pitch rad, height m) for time t (s). `measurement`: the
+        errors to remove; `estimate`: the estimator's latest estimate, for laws that want more
+        of it (rates, covariances); `limited`: the last targets were out of reach of some leg,
+        which kept its last joint angles (a law with integrators stops them, anti-windup)."""
+
+
+POSTURE_LAWS = Registry.of_subclasses("posture law", "posture_laws", PostureLaw)
+
+
+def checked_correction(value: Any, spec: str) -> PostureCorrection:
+    """A law's answer as a PostureCorrection of three finite floats; anything else is a PluginFailure."""
+    try:
+        roll, pitch, height = value
+        correction = PostureCorrection(float(roll), float(pitch), float(height))
+    except (TypeError, ValueError):
+        raise PluginFailure(f"posture law '{spec}' returned {value!r}, expected (roll, pitch, height)") from None
+    if not (math.isfinite(correction.roll) and math.isfinite(correction.pitch) and math.isfinite(correction.height)):
+        raise PluginFailure(f"posture law '{spec}' returned a non-finite correction {tuple(correction)}")
+    return correction
 
 
 class PiLoop:
@@ -36,7 +81,8 @@ class PiLoop:
     C(z) = kp + ki dt z / (z - 1) that docs/control.md analyses), clamped to +-limit.
 
     Anti-windup by conditional integration: the integral stops while the output is saturated in
-    the direction the error pushes, and while the caller says the output cannot be realised."""
+    the direction the error pushes, and while the caller says the output cannot be realised.
+    A missing or broken (non-finite) error keeps the last output."""
 
     def __init__(self, kp: float, ki: float, dt: float, limit: float):
         self.kp, self.ki, self.dt, self.limit = kp, ki, dt, limit
@@ -44,69 +90,47 @@ class PiLoop:
         self.output = 0.0
 
     def update(self, error: float, hold: bool = False) -> float:
-        self.integral, self.output = pi_step(self.integral, self.output, error, hold, self.kp, self.ki, self.dt,
-                                             self.limit)
+        if not math.isfinite(error):
+            return self.output
+        kp, ki, limit = self.kp, self.ki, self.limit
+        updated = self.integral + error * self.dt
+        raw = -(kp * error + ki * updated)
+        saturated = abs(raw) > limit and math.copysign(1.0, raw) == math.copysign(1.0, -error)
+        if hold or saturated:
+            raw = -(kp * error + ki * self.integral)
+        else:
+            self.integral = updated
+        self.output = min(max(raw, -limit), limit)
         return self.output
 
-    @property
-    def gains(self) -> tuple[float, float, float, float]:
-        """(kp, ki, dt, limit): pi_step's constants for this loop."""
-        return self.kp, self.ki, self.dt, self.limit
+
+class PiPostureLaw(PostureLaw):
+    """The built-in law (`pi`): a PI loop on roll, one on pitch, one on height (`[posture]` gains)."""
+
+    @classmethod
+    def from_config(cls, config) -> "PiPostureLaw":
+        posture = config.posture
+        return cls(posture.tilt_kp, posture.tilt_ki, posture.height_kp, posture.height_ki,
+                   math.radians(posture.max_tilt_correction_deg), posture.max_height_correction, config.run.time_step)
+
+    def __init__(self, tilt_kp: float, tilt_ki: float, height_kp: float, height_ki: float, max_tilt: float,
+                 max_height: float, dt: float):
+        self.roll = PiLoop(tilt_kp, tilt_ki, dt, max_tilt)
+        self.pitch = PiLoop(tilt_kp, tilt_ki, dt, max_tilt)
+        self.height = PiLoop(height_kp, height_ki, dt, max_height)
+
+    def update(self, t: float, measurement: PostureMeasurement, estimate: Estimate | None,
+               limited: bool) -> PostureCorrection:
+        roll = self.roll.update(measurement.roll, limited)
+        pitch = self.pitch.update(measurement.pitch, limited)
+        error = measurement.height_error
+        height = self.height.output if error is None else self.height.update(error, limited)
+        return PostureCorrection(roll, pitch, height)
 
 
-# Plain Python from PiLoop.update; compiled into the pilot's per-tick kernel (one source for both).
-@register_jitable
-def pi_step(integral: float, output: float, error: float, hold: bool, kp: float, ki: float, dt: float,
-            limit: float) -> tuple[float, float]:
-    """PiLoop.update on the loop's state: the new (integral, output)."""
-    if not math.isfinite(error):
-        return integral, output          # a missing or broken measurement: keep the last command
-    updated = integral + error * dt
-    raw = -(kp * error + ki * updated)
-    saturated = abs(raw) > limit and math.copysign(1.0, raw) == math.copysign(1.0, -error)
-    if not (hold or saturated):
-        integral = updated
-    else:
-        raw = -(kp * error + ki * integral)
-    return integral, min(max(raw, -limit), limit)
-
-
-class PostureController:
-    def __init__(self, config: PostureConfig, dt: float, height_reference: float):
-        limit = math.radians(config.max_tilt_correction_deg)
-        self.roll = PiLoop(config.tilt_kp, config.tilt_ki, dt, limit)
-        self.pitch = PiLoop(config.tilt_kp, config.tilt_ki, dt, limit)
-        self.height = PiLoop(config.height_kp, config.height_ki, dt, config.max_height_correction)
-        self.height_reference = height_reference
-
-    def update(self, measurement: PostureMeasurement | None, hold: bool = False) -> None:
-        """One control tick. `hold` (the last targets were out of reach) freezes the integrators."""
-        if measurement is None:
-            return
-        self.roll.update(measurement.roll, hold)
-        self.pitch.update(measurement.pitch, hold)
-        if measurement.height is not None:
-            self.height.update(measurement.height - self.height_reference, hold)
-
-    @property
-    def correction(self) -> tuple[float, float, float]:
-        """(roll rad, pitch rad, height m) of the body relative to the gait frame."""
-        return self.roll.output, self.pitch.output, self.height.output
-
-    def apply(self, feet: np.ndarray) -> np.ndarray:
-        """Gait-frame foot targets (6, 3) -> body-frame targets."""
-        return tilted_targets(feet, self.roll.output, self.pitch.output, self.height.output)
-
-    def to_gait_frame(self, feet: np.ndarray) -> np.ndarray:
-        """Body-frame positions (6, 3) -> gait frame: the inverse of `apply`."""
-        return untilted_positions(feet, self.roll.output, self.pitch.output, self.height.output, np.empty_like(feet))
-
-
-# Compiled, with the products in numpy's order (rows_times_matrix): each transform was a handful
-# of numpy calls and a 3x3 matrix built from a list, 5.9 us a tick for the two, against 1.9 us.
 @njit(cache=True)
 def correction_rotation(roll: float, pitch: float) -> np.ndarray:
-    """Ry(pitch) Rx(roll)."""
+    """R = Ry(pitch) Rx(roll)."""
     cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
     rotation = np.empty((3, 3))
     rotation[0, 0], rotation[0, 1], rotation[0, 2] = cp, sp * sr, sp * cr
@@ -115,10 +139,21 @@ def correction_rotation(roll: float, pitch: float) -> np.ndarray:
     return rotation
 
 
+def body_frame_targets(feet: np.ndarray, correction: PostureCorrection) -> np.ndarray:
+    """Gait-frame foot targets (n, 3) -> body-frame targets: rows R^T (p - d)."""
+    return (feet - [0.0, 0.0, correction.height]) @ correction_rotation(correction.roll, correction.pitch)
+
+
+def gait_frame_positions(feet: np.ndarray, correction: PostureCorrection) -> np.ndarray:
+    """Body-frame positions (n, 3) -> gait frame: rows R p + d, the inverse of body_frame_targets."""
+    return feet @ correction_rotation(correction.roll, correction.pitch).T + [0.0, 0.0, correction.height]
+
+
+# body_frame_targets and gait_frame_positions compiled, for the pilot's per-tick kernel
+# (tests/testbed/test_posture.py compares them).
 @njit(cache=True)
 def tilted_targets(feet: np.ndarray, roll: float, pitch: float, height: float) -> np.ndarray:
-    """Foot targets (n, 3) for a body turned by R = Ry(pitch) Rx(roll) and raised by
-    d = (0, 0, height) over them: rows R^T (p - d), numpy's `(p - d) @ R` bit for bit."""
+    """body_frame_targets for the correction (roll, pitch, height): a new array."""
     shifted = feet.copy()
     shifted[:, 2] -= height
     return rows_times_matrix(shifted, correction_rotation(roll, pitch), np.empty_like(shifted))
@@ -126,8 +161,8 @@ def tilted_targets(feet: np.ndarray, roll: float, pitch: float, height: float) -
 
 @njit(cache=True)
 def untilted_positions(feet, roll, pitch, height, out):
-    """The inverse of tilted_targets, written into `out` (another array than `feet`): rows
-    R p + d, numpy's `p @ R.T + d`."""
+    """gait_frame_positions for the correction (roll, pitch, height), written into `out`
+    (another array than `feet`)."""
     rows_times_matrix(feet, correction_rotation(roll, pitch).T, out)
     out[:, 2] += height
     return out

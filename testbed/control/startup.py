@@ -65,7 +65,6 @@ class CalibrationPoses:
             return 0.0, 0.0
         for start, duration, (roll_before, pitch_before), (roll_after, pitch_after) in reversed(self._moves):
             if t >= start:
-                # Python floats: numpy's arithmetic on the pairs, without its per-call cost
                 progress = minimum_jerk((t - start) / duration)
                 return (roll_before + progress * (roll_after - roll_before),
                         pitch_before + progress * (pitch_after - pitch_before))

@@ -32,6 +32,20 @@ class UnreachableTarget(ValueError):
         self.reason = reason
 
 
+# The geometry as the compiled kernels take it: one record (a one-element structured array; a
+# kernel reads `legs[0].femur`, ...), one argument however many fields.
+LEG_ARRAYS = np.dtype([
+    ("base_angle", "f8", 6),        # rad, theta0_i
+    ("base_distance", "f8", 6),     # m, a01_i
+    ("base_cos", "f8", 6),          # cos theta0_i
+    ("base_sin", "f8", 6),
+    ("femur", "f8"),                # m, a2
+    ("tibia", "f8"),                # m, a3
+    ("lower", "f8", 3),             # rad, joint limits (coxa, femur, tibia)
+    ("upper", "f8", 3),
+])
+
+
 @dataclass(frozen=True)
 class LegGeometry:
     base_angle: np.ndarray       # (6,) rad, theta0_i
@@ -60,6 +74,11 @@ class LegGeometry:
     @cached_property
     def base_sin(self) -> np.ndarray:
         return np.sin(self.base_angle)
+
+    @cached_property
+    def arrays(self) -> np.ndarray:
+        """The geometry as a LEG_ARRAYS record (one-element array), for the compiled kernels."""
+        return leg_arrays(self.base_angle, self.base_distance, self.femur, self.tibia, self.lower, self.upper)
 
     @property
     def base_positions(self) -> np.ndarray:
@@ -92,11 +111,37 @@ def leg_transform(geom: LegGeometry, leg: int, q: np.ndarray) -> np.ndarray:
     return base_transform(geom, leg) @ t30
 
 
+def leg_arrays(base_angle, base_distance, femur, tibia, lower, upper) -> np.ndarray:
+    """A LEG_ARRAYS record of these values."""
+    legs = np.empty(1, LEG_ARRAYS)
+    legs["base_angle"], legs["base_distance"] = base_angle, base_distance
+    legs["base_cos"], legs["base_sin"] = np.cos(base_angle), np.sin(base_angle)
+    legs["femur"], legs["tibia"], legs["lower"], legs["upper"] = femur, tibia, lower, upper
+    return legs
+
+
+@njit(cache=True)
+def rows_times_matrix(points, matrix, out):
+    """out = points @ matrix for (n, 3) points and a 3x3 matrix; `out` must be another array than `points`."""
+    for row in range(points.shape[0]):
+        for col in range(3):
+            out[row, col] = (points[row, 0] * matrix[0, col] + points[row, 1] * matrix[1, col]
+                             + points[row, 2] * matrix[2, col])
+    return out
+
+
+@njit(cache=True)
+def matrix_times_vector(matrix, vector, out):
+    """out = matrix @ vector for a 3x3 matrix and a 3-vector."""
+    for row in range(3):
+        out[row] = matrix[row, 0] * vector[0] + matrix[row, 1] * vector[1] + matrix[row, 2] * vector[2]
+    return out
+
+
 @intrinsic
 def fused_multiply_add(typingctx, a, b, c):
-    """a * b + c with one rounding (compiled code only). OpenBLAS's kernels, which numpy's `@` and
-    `linalg.solve` run even on 3x3 matrices, accumulate their sums of products this way; compiled
-    code that does the same gives numpy's results bit for bit."""
+    """a * b + c with one rounding (compiled code only). Nothing in this module uses it; it stays
+    while estimators/linalg.py imports it."""
     def codegen(context, builder, signature, args):
         double = ir.DoubleType()
         function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(double, [double] * 3), "llvm.fma.f64")
@@ -104,47 +149,24 @@ def fused_multiply_add(typingctx, a, b, c):
     return types.float64(types.float64, types.float64, types.float64), codegen
 
 
-@njit(cache=True)
-def rows_times_matrix(points, matrix, out):
-    """out = points @ matrix for (n, 3) points and a 3x3 matrix, in numpy's order: row by row, each
-    entry a chain of fused multiply-adds over the inner index (OpenBLAS's dgemm kernel). `out`
-    must be another array than `points`."""
-    for row in range(points.shape[0]):
-        for col in range(3):
-            total = points[row, 0] * matrix[0, col]
-            total = fused_multiply_add(points[row, 1], matrix[1, col], total)
-            out[row, col] = fused_multiply_add(points[row, 2], matrix[2, col], total)
-    return out
-
-
-@njit(cache=True)
-def matrix_times_vector(matrix, vector, out):
-    """out = matrix @ vector for a 3x3 matrix and a contiguous 3-vector, in numpy's order
-    (OpenBLAS's dgemv: the first two products summed first, then the third, fused)."""
-    for row in range(3):
-        first_two = fused_multiply_add(matrix[row, 0], vector[0], matrix[row, 1] * vector[1])
-        out[row] = fused_multiply_add(matrix[row, 2], vector[2], first_two)
-    return out
-
-
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
     """(6, 3) foot positions p_i^b for the 18 joint angles q: eq. 2 for all legs at once."""
-    return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.base_cos, geom.base_sin,
-                                 geom.base_angle, geom.base_distance, geom.femur, geom.tibia)
+    return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.arrays)
 
 
-# Compiled: odometry, the estimators and the posture controller call this every tick or encoder
-# sample, and numpy's column_stack of six-element arrays cost ~10 us a call against ~1 us here.
+# Compiled: odometry, the estimators and the posture controller call it every tick or encoder sample.
 @njit(cache=True)
-def foot_positions_arrays(q, base_cos, base_sin, base_angle, base_distance, a2, a3):
-    """foot_positions on the geometry's arrays (compiled; callable from other kernels)."""
+def foot_positions_arrays(q, legs):
+    """foot_positions on a LEG_ARRAYS record (compiled; callable from other kernels)."""
+    g = legs[0]
+    a2, a3 = g.femur, g.tibia
     feet = np.empty((6, 3))
     for leg in range(6):
         th1, th2, th3 = q[3 * leg], q[3 * leg + 1], q[3 * leg + 2]
         reach = a2 * math.cos(th2) + a3 * math.cos(th2 + th3)
-        angle = base_angle[leg] + th1
-        feet[leg, 0] = base_distance[leg] * base_cos[leg] + reach * math.cos(angle)
-        feet[leg, 1] = base_distance[leg] * base_sin[leg] + reach * math.sin(angle)
+        angle = g.base_angle[leg] + th1
+        feet[leg, 0] = g.base_distance[leg] * g.base_cos[leg] + reach * math.cos(angle)
+        feet[leg, 1] = g.base_distance[leg] * g.base_sin[leg] + reach * math.sin(angle)
         feet[leg, 2] = a2 * math.sin(th2) + a3 * math.sin(th2 + th3)
     return feet
 
@@ -164,12 +186,26 @@ def world_feet(geom: LegGeometry, rotation: np.ndarray, position: np.ndarray, an
     `rotation`, `position`) moving with the body's world-frame angular and linear velocity; joint
     angles and rates `q`, `dq` (18,). What DART's per-body transform and velocity getters give,
     in one compiled call instead of eighteen Python calls into DART."""
-    return WorldFeet(*world_feet_arrays(rotation, position, angular_velocity, linear_velocity, q, dq,
-                                  geom.base_angle, geom.base_distance, geom.femur, geom.tibia))
+    return WorldFeet(*world_feet_of(rotation, position, angular_velocity, linear_velocity, q, dq, geom.arrays))
 
 
 @njit(cache=True)
 def world_feet_arrays(rotation, position, omega, velocity, q, dq, base_angle, base_distance, a2, a3):
+    """world_feet_of with the geometry as separate arrays, for the callers not yet moved to the
+    LEG_ARRAYS record (estimators/leg_odometry.py, testbed/world/simulation.py)."""
+    legs = np.empty(1, LEG_ARRAYS)
+    legs[0].base_angle[:] = base_angle
+    legs[0].base_distance[:] = base_distance
+    legs[0].femur, legs[0].tibia = a2, a3
+    return world_feet_of(rotation, position, omega, velocity, q, dq, legs)
+
+
+@njit(cache=True)
+def world_feet_of(rotation, position, omega, velocity, q, dq, legs):
+    """world_feet on a LEG_ARRAYS record (of which it reads base_angle, base_distance, femur and
+    tibia): (centers, velocities, spins, tibia rotations, tibia origins)."""
+    g = legs[0]
+    base_angle, base_distance, a2, a3 = g.base_angle, g.base_distance, g.femur, g.tibia
     centers, velocities, spins = np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 3))
     rotations, origins = np.empty((6, 3, 3)), np.empty((6, 3))
     local = np.empty((5, 3))    # body frame: foot, foot velocity, spin, tibia x, tibia y
@@ -237,9 +273,7 @@ def inverse_kinematics(geom: LegGeometry, leg: int, target: np.ndarray, elbow: E
     """
     target = np.asarray(target, dtype=float)
     q = np.empty(3)
-    status = _solve_leg(target[0], target[1], target[2], geom.base_cos[leg], geom.base_sin[leg],
-                        geom.base_distance[leg], geom.femur, geom.tibia, geom.lower, geom.upper,
-                        elbow_sign(elbow), q)
+    status = _solve_leg(target, leg, geom.arrays, elbow_sign(elbow), q)
     if status == REACHABLE:
         return q
     raise UnreachableTarget(leg, target, _unreachable_reason(geom, leg, target, q, status))
@@ -249,20 +283,17 @@ def inverse_kinematics_legs(geom: LegGeometry, targets: np.ndarray, fallback: np
                             elbow: Elbow = "up") -> tuple[np.ndarray, np.ndarray]:
     """All six legs in one compiled call: (18,) joint angles for (6, 3) foot targets and the (6,)
     bool mask of the reachable legs. A leg out of reach gets its three angles from `fallback`
-    (18,), or NaN without one. The same angles, bit for bit, as `inverse_kinematics` leg by leg."""
+    (18,), or NaN without one. The same solution as `inverse_kinematics` leg by leg."""
     fallback = np.full(18, np.nan) if fallback is None else np.asarray(fallback, dtype=float)
-    q, status = _solve_legs(np.asarray(targets, dtype=float), geom.base_cos, geom.base_sin, geom.base_distance,
-                            geom.femur, geom.tibia, geom.lower, geom.upper, elbow_sign(elbow), fallback)
+    q, status = _solve_legs(np.asarray(targets, dtype=float), geom.arrays, elbow_sign(elbow), fallback)
     return q, status == REACHABLE
 
 
 def joint_targets_or_last(geom: LegGeometry, targets: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, bool]:
     """A controller's inverse kinematics, knee up: (18,) joint angles for (6, 3) foot targets, a leg
     out of reach keeping its `last` angles, and whether every leg reached its target. The angles
-    of `inverse_kinematics_legs` (one compiled call with less around it: 2.0 us against 4.9 with
-    the mask's `all`)."""
-    return solve_legs_or_last(targets, geom.base_cos, geom.base_sin, geom.base_distance, geom.femur, geom.tibia,
-                              geom.lower, geom.upper, elbow_sign("up"), last)
+    of `inverse_kinematics_legs`."""
+    return solve_legs_or_last(targets, geom.arrays, elbow_sign("up"), last)
 
 
 def inverse_kinematics_all(geom: LegGeometry, targets: np.ndarray, elbow: Elbow = "up") -> np.ndarray:
@@ -290,12 +321,16 @@ def _unreachable_reason(geom: LegGeometry, leg: int, target: np.ndarray, q: np.n
             f"[{np.degrees(geom.lower[joint]):.1f}, {np.degrees(geom.upper[joint]):.1f}]")
 
 
-# The closed form is compiled with numba: per leg it is a dozen scalar operations, which numpy
-# spends ~20 us on in call overhead; compiled, the six legs cost ~1 us.
+# The closed form is compiled: per leg it is a dozen scalar operations, too few for numpy.
 @njit(cache=True)
-def _solve_leg(x, y, z, c0, s0, a01, a2, a3, lower, upper, elbow_sign, out) -> int:
-    """One leg: writes (th1, th2, th3) into `out` and returns REACHABLE, or OUT_OF_REACH (out
-    untouched), or PAST_LIMITS (out: the first shoulder branch)."""
+def _solve_leg(target, leg, legs, elbow_sign, out) -> int:
+    """Leg `leg` (of the LEG_ARRAYS record `legs`) to `target` (3,), body frame: writes (th1, th2,
+    th3) into `out` and returns REACHABLE, or OUT_OF_REACH (out untouched), or PAST_LIMITS (out:
+    the first shoulder branch)."""
+    g = legs[0]
+    x, y, z = target[0], target[1], target[2]
+    c0, s0, a01, a2, a3 = g.base_cos[leg], g.base_sin[leg], g.base_distance[leg], g.femur, g.tibia
+    lower, upper = g.lower, g.upper
     rx, ry = x - a01 * c0, y - a01 * s0
     x0, y0 = c0 * rx + s0 * ry, -s0 * rx + c0 * ry
     horizontal = math.hypot(x0, y0)
@@ -320,22 +355,23 @@ def _solve_leg(x, y, z, c0, s0, a01, a2, a3, lower, upper, elbow_sign, out) -> i
 
 
 @njit(cache=True)
-def _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, fallback):
+def _solve_legs(targets, legs, elbow_sign, fallback):
+    """(18,) joint angles for the (6, 3) `targets`, `fallback`'s for a leg without a solution, and
+    each leg's status."""
     q = fallback.copy()
     status = np.empty(6, np.int64)
     out = np.empty(3)
     for leg in range(6):
-        status[leg] = _solve_leg(targets[leg, 0], targets[leg, 1], targets[leg, 2], c0[leg], s0[leg], a01[leg],
-                                 a2, a3, lower, upper, elbow_sign, out)
+        status[leg] = _solve_leg(targets[leg], leg, legs, elbow_sign, out)
         if status[leg] == REACHABLE:
             q[3 * leg:3 * leg + 3] = out
     return q, status
 
 
 @njit(cache=True)
-def solve_legs_or_last(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last):
-    """joint_targets_or_last on the geometry's arrays (compiled; callable from other kernels)."""
-    q, status = _solve_legs(targets, c0, s0, a01, a2, a3, lower, upper, elbow_sign, last)
+def solve_legs_or_last(targets, legs, elbow_sign, last):
+    """joint_targets_or_last on a LEG_ARRAYS record (compiled; callable from other kernels)."""
+    q, status = _solve_legs(targets, legs, elbow_sign, last)
     return q, np.all(status == REACHABLE)
 
 

@@ -1,16 +1,25 @@
-"""Posture controller: PI loops with anti-windup, the foot-target transform, the kinematic height,
-terrain adaptation of the gait, the loop design's margins, and closed-loop runs."""
+"""Posture control: PI loops with anti-windup, the built-in law, the foot-target transform, the
+kinematic height, terrain adaptation of the gait, the loop design's margins, a posture law plugged
+in through the CLI, and closed-loop runs."""
 
+import json
 import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.model.errors import ConfigError
+from testbed.model.errors import ConfigError, PluginFailure
 from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist
-from testbed.model.kinematics import LegGeometry, foot_positions, inverse_kinematics_all, nominal_stance
-from testbed.control.posture import PiLoop, PostureController, PostureMeasurement, correction_rotation, kinematic_height
+from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
+from testbed.control.posture import (POSTURE_LAWS, PiLoop, PiPostureLaw, PostureCorrection, PostureMeasurement,
+                                     body_frame_targets, checked_correction, correction_rotation, gait_frame_positions,
+                                     kinematic_height, tilted_targets, untilted_positions)
 from testbed.runtime.runner import run
 
 CFG = config.load()
@@ -48,37 +57,63 @@ def test_pi_loop_holds_on_nan_and_when_told_to():
     assert all(math.isfinite(v) for v in (loop.output, loop.integral))
 
 
+def test_the_pi_law_runs_one_loop_per_axis_and_keeps_the_height_without_a_measurement():
+    law = PiPostureLaw.from_config(CFG)
+    loops = [PiLoop(CFG.posture.tilt_kp, CFG.posture.tilt_ki, CFG.run.time_step,
+                    math.radians(CFG.posture.max_tilt_correction_deg)) for _ in range(2)]
+    height = PiLoop(CFG.posture.height_kp, CFG.posture.height_ki, CFG.run.time_step, CFG.posture.max_height_correction)
+    rng = np.random.default_rng(1)
+    for k in range(500):
+        roll, pitch = rng.normal(0.0, 0.05, 2)
+        error = None if k % 5 == 0 else rng.normal(0.0, 0.01)
+        limited = k % 7 == 0
+        correction = law.update(k * CFG.run.time_step, PostureMeasurement(roll, pitch, error), None, limited)
+        expected = (loops[0].update(roll, limited), loops[1].update(pitch, limited),
+                    height.output if error is None else height.update(error, limited))
+        assert isinstance(correction, PostureCorrection) and correction == pytest.approx(expected, abs=1e-15)
+
+
+def test_the_laws_registry_has_the_pi_law_and_the_config_names_it():
+    assert "pi" in POSTURE_LAWS.names() and POSTURE_LAWS.resolve("pi") is PiPostureLaw
+    assert CFG.posture.law == "pi"
+    with pytest.raises(ConfigError, match="unknown posture law 'pd'"):
+        config.load(None, {"posture": {"law": "pd"}})
+
+
+def test_a_laws_answer_must_be_three_finite_numbers():
+    assert checked_correction((0.01, -0.02, 0.003), "my_law") == PostureCorrection(0.01, -0.02, 0.003)
+    assert checked_correction(np.array([0.0, 0.0, 0.0]), "my_law") == PostureCorrection()
+    for answer, message in ((None, "returned None"), ((0.0, 0.0), "returned \\(0.0, 0.0\\), expected"),
+                            ((math.nan, 0.0, 0.0), "returned a non-finite"), (("a", 0, 0), "returned")):
+        with pytest.raises(PluginFailure, match=f"^posture law 'my_law' {message}"):
+            checked_correction(answer, "my_law")
+
+
 def test_correction_turns_the_body_and_the_inverse_is_exact():
-    controller = PostureController(CFG.posture, DT, CFG.robot.stance_height)
-    controller.roll.output, controller.pitch.output, controller.height.output = 0.05, -0.03, 0.01
-    body = controller.apply(NEUTRAL)
-    assert np.allclose(controller.to_gait_frame(body), NEUTRAL, atol=1e-12)
+    correction = PostureCorrection(0.05, -0.03, 0.01)
+    body = body_frame_targets(NEUTRAL, correction)
+    np.testing.assert_allclose(gait_frame_positions(body, correction), NEUTRAL, atol=1e-12)
     # Feet fixed on the ground: the body frame is the gait frame turned by R and raised by d.
     rotation = correction_rotation(0.05, -0.03)
-    assert np.allclose(body @ rotation.T + [0, 0, 0.01], NEUTRAL, atol=1e-12)
+    np.testing.assert_allclose(body @ rotation.T + [0, 0, 0.01], NEUTRAL, atol=1e-12)
     # A positive roll correction lowers the left feet (y > 0) relative to the body: the left side rises.
-    controller.pitch.output = controller.height.output = 0.0
-    lowered = controller.apply(NEUTRAL)[:, 2] - NEUTRAL[:, 2]
+    lowered = body_frame_targets(NEUTRAL, PostureCorrection(0.05, 0.0, 0.0))[:, 2] - NEUTRAL[:, 2]
     assert np.all(np.sign(lowered[NEUTRAL[:, 1] > 0.01]) == -1)
 
 
-def test_the_compiled_correction_is_numpys_bit_for_bit():
-    """The transforms as numpy computed them before they were compiled (the same runs, bit for bit)."""
-    controller = PostureController(CFG.posture, DT, CFG.robot.stance_height)
+def test_the_compiled_correction_is_the_readable_one():
     rng = np.random.default_rng(0)
     for _ in range(1000):
-        roll, pitch, height = rng.normal(0.0, 0.1, 3)
-        controller.roll.output, controller.pitch.output, controller.height.output = roll, pitch, height
-        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        correction = PostureCorrection(*rng.normal(0.0, 0.1, 3))
+        cr, sr, cp, sp = math.cos(correction.roll), math.sin(correction.roll), math.cos(correction.pitch), \
+            math.sin(correction.pitch)
         rotation = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
-        assert correction_rotation(roll, pitch).tobytes() == rotation.tobytes()
+        np.testing.assert_allclose(correction_rotation(correction.roll, correction.pitch), rotation, rtol=0, atol=1e-15)
         feet = NEUTRAL + rng.normal(0.0, 0.02, NEUTRAL.shape)
-        shifted = feet.copy()
-        shifted[:, 2] -= height
-        assert controller.apply(feet).tobytes() == (shifted @ rotation).tobytes()
-        gait = feet @ rotation.T
-        gait[:, 2] += height
-        assert controller.to_gait_frame(feet).tobytes() == gait.tobytes()
+        np.testing.assert_allclose(tilted_targets(feet, *correction), body_frame_targets(feet, correction),
+                                   rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(untilted_positions(feet, *correction, np.empty((6, 3))),
+                                   gait_frame_positions(feet, correction), rtol=1e-12, atol=1e-15)
 
 
 def test_kinematic_height_of_a_level_stance_and_of_a_tilted_body():
@@ -88,7 +123,7 @@ def test_kinematic_height_of_a_level_stance_and_of_a_tilted_body():
         CFG.robot.stance_height, abs=1e-9)
     # The same body pitched by 5 degrees over the same ground: the feet seen from the body turn.
     pitch = math.radians(5.0)
-    feet = NEUTRAL @ correction_rotation(0.0, pitch)      # rows R^T p
+    feet = body_frame_targets(NEUTRAL, PostureCorrection(0.0, pitch, 0.0))
     tilted = inverse_kinematics_all(GEOM, feet)
     assert kinematic_height(GEOM, tilted, stance, 0.0, pitch, CFG.robot.foot_radius) == pytest.approx(
         CFG.robot.stance_height, abs=1e-6)
@@ -171,3 +206,84 @@ def test_stepping_down_with_posture_control_keeps_the_body_level():
     assert not controlled["fell"] and controlled["tilt_max_deg"] < 2.0
     assert uncontrolled["tilt_max_deg"] > 2 * controlled["tilt_max_deg"]
     assert controlled["ik_limited_ticks"] == 0
+
+
+LAWS_MODULE = textwrap.dedent('''
+    """Posture laws of a user's own, for the plug point test."""
+    import atexit
+    import json
+    import math
+    import os
+
+    from testbed.control.posture import PostureCorrection, PostureLaw
+
+
+    class Rolled(PostureLaw):
+        """Always 3 degrees of roll, nothing else; writes how often and from when it was asked."""
+
+        def __init__(self):
+            self.times = []
+            atexit.register(self.write)
+
+        def update(self, t, measurement, estimate, limited):
+            assert estimate is not None and not hasattr(estimate, "body_position")     # an estimate, not truth
+            self.times.append(t)
+            return PostureCorrection(roll=math.radians(3.0))
+
+        def write(self):
+            with open(os.environ["LAW_LOG"], "w") as log:
+                json.dump({"calls": len(self.times), "first": self.times[0] if self.times else None}, log)
+
+
+    class Broken(PostureLaw):
+        def update(self, t, measurement, estimate, limited):
+            raise RuntimeError("no posture today")
+
+
+    class NotALaw:
+        pass
+''')
+
+
+def run_with_law(tmp_path, law, terrain="slope", duration=None):
+    """`testbed run` in a new process with `posture.law = law` (the laws module on PYTHONPATH):
+    (return code, stderr, metrics or None, the Recording law's log or None)."""
+    (tmp_path / "my_laws.py").write_text(LAWS_MODULE)
+    metrics, log = tmp_path / f"{law.replace(':', '_')}.json", tmp_path / "law.json"
+    duration = duration or CFG.gait.startup_time + 1.0
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(Path(__file__).parents[2])]),
+               LAW_LOG=str(log))
+    result = subprocess.run([sys.executable, "-m", "testbed.tools.cli", "run", "--terrain", terrain,
+                             "--gait", "tripod", "--estimator", "ekf", "--controller", "posture",
+                             "--duration", str(duration), "--set", f"posture.law={law}", "--metrics", str(metrics),
+                             "--out", str(tmp_path / "run.mcap")], capture_output=True, text=True, env=env)
+    return (result.returncode, result.stderr, json.loads(metrics.read_text()) if metrics.exists() else None,
+            json.loads(log.read_text()) if log.exists() else None)
+
+
+@pytest.mark.slow
+def test_a_posture_law_of_ones_own_replaces_the_pi_law(tmp_path):
+    """A law that always commands 3 degrees of roll tilts the body by that much; the pilot asks it
+    once a tick from the end of the start-up on. The built-in law keeps the body level."""
+    code, err, rolled, log = run_with_law(tmp_path, "my_laws:Rolled", terrain="flat")
+    assert code == 0, err
+    assert log["calls"] == pytest.approx(1.0 / CFG.run.time_step, abs=2)      # one second after the start-up
+    assert log["first"] == pytest.approx(CFG.gait.startup_time, abs=2 * CFG.run.time_step)
+    assert rolled["tilt_max_deg"] == pytest.approx(3.0, abs=0.5) and rolled["tilt_rms_deg"] > 2.0
+    code, err, pi, _ = run_with_law(tmp_path, "pi", terrain="flat")
+    assert code == 0, err
+    assert pi["tilt_max_deg"] < 1.0
+
+
+@pytest.mark.slow
+def test_bad_posture_laws_are_reported_in_one_line(tmp_path):
+    """Before the run (exit 2) or, for a law that raises, when it first runs (exit 1)."""
+    for law, code, message in (("my_laws:Missing", 2, "has no 'Missing'"),
+                               ("my_laws:NotALaw", 2, "is not a subclass of testbed.PostureLaw"),
+                               ("nowhere:Law", 2, "no module named 'nowhere'"),
+                               ("my_laws:Broken", 1, "RuntimeError: no posture today")):
+        returned, err, _, _ = run_with_law(tmp_path, law, terrain="flat")
+        # (numba may warn while it compiles into a cold cache)
+        reported = [line for line in err.splitlines() if line.startswith("testbed: ")]
+        assert returned == code and len(reported) == 1 and "Traceback" not in err, (law, err)
+        assert "posture law" in reported[0] and message in reported[0], reported
