@@ -45,8 +45,8 @@ class Encoders:
 
 
 # Compiled: numpy's five calls on 18 angles cost ~6 us per sample in the run loop, the loop ~1 us.
-# Integer-valued floats throughout until the last product, so the same bits as numpy's
-# (rint, then Python's float modulo, which numba's % follows).
+# Integer-valued floats throughout until the last product: the counts are exact
+# (rint, then a float modulo).
 @njit(cache=True)
 def wrapped_counts(raw: np.ndarray, lsb: float, counts_per_turn: int) -> np.ndarray:
     """Angles quantized to `lsb` and wrapped to [-pi, pi): counts in [-half, half) turns, times lsb."""
