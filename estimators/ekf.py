@@ -83,7 +83,8 @@ def kalman_correction(P: np.ndarray, PHt: np.ndarray, S_inverse: np.ndarray, inn
 
     The error states [consider_start, consider_stop) are Schmidt-Kalman "consider" states: they
     keep their value (zero gain) and their uncertainty. The Joseph form with that gain equals the
-    optimal update plus K_c S K_c^T = (P H^T)_c S^-1 (P H^T)_c^T on their block."""
+    optimal update plus K_c S K_c^T = (P H^T)_c S^-1 (P H^T)_c^T on their block.
+    (Slices given to `@` are made contiguous: compiled, `@` on a strided view is slower.)"""
     gain = PHt @ S_inverse
     P -= gain @ PHt.T
     c0, c1 = consider_start, consider_stop

@@ -278,7 +278,8 @@ class FusionEstimator(Estimator):
         self.nominal = np.zeros(1, dtype=NOMINAL)
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
-        # Squared body acceleration beyond which a specific force sample is an outlier.
+        # The specific force gate: the squared body acceleration beyond which a sample is an
+        # outlier, and the body acceleration's variance.
         self.pre = Preintegration(gravity, self.accel_gate * self.noise.body_accel, self.noise.body_accel)
         self.rejected_accel = 0
         self.tilt_restarts = 0
