@@ -85,17 +85,21 @@ def rotate_by_vector(q: Quaternion, rx: float, ry: float, rz: float) -> Quaterni
 def to_matrix(q: Quaternion) -> np.ndarray:
     """3x3 rotation matrix of the quaternion (Sola 2017, eq. 115)."""
     x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    out = np.empty((3, 3))     # filled entry by entry: compiled, np.array of nested lists is slow
+    out[0, 0], out[0, 1], out[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return out
 
 
 @register_jitable
 def skew(v) -> np.ndarray:
     """[v]x, the cross-product matrix of a 3-sequence: skew(a) @ b == cross(a, b)."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    out = np.zeros((3, 3))     # filled entry by entry, as to_matrix
+    out[0, 1], out[0, 2] = -v[2], v[1]
+    out[1, 0], out[1, 2] = v[2], -v[0]
+    out[2, 0], out[2, 1] = -v[1], v[0]
+    return out
 
 
 @register_jitable
@@ -194,7 +198,11 @@ def euler_jacobian(roll: float, pitch: float) -> np.ndarray:
     if abs(cp) < 1e-6:
         cp = math.copysign(1e-6, cp)
     tp = math.sin(pitch) / cp
-    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+    out = np.empty((3, 3))     # filled entry by entry, as to_matrix
+    out[0, 0], out[0, 1], out[0, 2] = 1.0, sr * tp, cr * tp
+    out[1, 0], out[1, 1], out[1, 2] = 0.0, cr, -sr
+    out[2, 0], out[2, 1], out[2, 2] = 0.0, sr / cp, cr / cp
+    return out
 
 
 @register_jitable
