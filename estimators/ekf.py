@@ -13,18 +13,15 @@ state and reset (Sola 2017, section 6).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, inject_arrays,
-                               inject_in_place)
-from estimators.linalg import inverse3, product3, skew, transposed_product3
-from estimators.preintegration import (DP, DT, DV, J_P_A, J_P_G, J_R, J_V_A, J_V_G, JACOBIANS,
-                                       current_attitude, quaternion_matrix, skew3)
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, foot_nis,
+                               inject_arrays, inject_in_place)
+from estimators.preintegration import current_attitude
 from testbed.model.kinematics import LegGeometry
 
 I3 = np.eye(3)
@@ -32,141 +29,140 @@ RESET_THRESHOLD = 1e-6    # rad: below it the reset changes P by under 1e-6 of i
 
 
 @njit(cache=True)
-def predict(buffer: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.ndarray, F: np.ndarray,
-            noise_rates: np.ndarray, extra_noise: np.ndarray, gravity: float) -> tuple[float, float, float, float]:
-    """Move velocity, feet (in place) and P over the preintegrated interval; returns the attitude.
-    The process noise is diagonal: `noise_rates` per second of interval plus `extra_noise`."""
-    dt = buffer[DT]
-    qx, qy, qz, qw = buffer[0], buffer[1], buffer[2], buffer[3]
-    up = np.array([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)])
-    D = quaternion_matrix(buffer[16], buffer[17], buffer[18], buffer[19]).T
-    shift = velocity * dt - 0.5 * gravity * dt * dt * up + buffer[DP]
-    velocity[:] = transposed_product3(D, velocity - gravity * dt * up + buffer[DV])
+def predict(record: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.ndarray, F: np.ndarray,
+            noise_rates: np.ndarray, extra_noise: np.ndarray) -> rot.Quaternion:
+    """Move velocity, feet (in place) and P over the interval preintegrated in `record` (a
+    preintegration.PREINTEGRATION record); returns the attitude. The process noise is diagonal:
+    `noise_rates` per second of interval plus `extra_noise`."""
+    p = record[0]
+    dt, gravity = p.dt, p.gravity
+    up = np.array(rot.up_in_body((p.q0[0], p.q0[1], p.q0[2], p.q0[3])))
+    D = rot.to_matrix((p.dq[0], p.dq[1], p.dq[2], p.dq[3])).T
+    shift = velocity * dt - 0.5 * gravity * dt * dt * up + p.dp
+    velocity[:] = rot.matvec3(D, velocity - gravity * dt * up + p.dv)
     for leg in range(feet.shape[0]):
-        feet[leg] = transposed_product3(D, feet[leg] - shift)
-    _fill_transition(F, D, buffer[JACOBIANS].reshape(5, 3, 3), up, velocity, feet, gravity, dt)
+        feet[leg] = rot.matvec3(D, feet[leg] - shift)
+    _fill_transition(F, D, p, up, velocity, feet, gravity, dt)
     P[:] = F @ P @ F.T
-    _symmetrise(P)        # against rounding
+    symmetrise(P)        # against rounding
     for i in range(P.shape[0]):
         P[i, i] += noise_rates[i] * dt + extra_noise[i]
-    return current_attitude(buffer)
+    return current_attitude(record)
 
 
 @njit(cache=True)
-def _fill_transition(F: np.ndarray, D: np.ndarray, J: np.ndarray, up: np.ndarray, velocity: np.ndarray,
+def _fill_transition(F: np.ndarray, D: np.ndarray, p, up: np.ndarray, velocity: np.ndarray,
                      feet: np.ndarray, gravity: float, dt: float) -> None:
-    """The non-identity blocks of the error-state transition (module docstring), in place.
-    `velocity` and `feet` are the nominal values after the interval."""
-    DU = product3(D, skew3(up[0], up[1], up[2]))
-    JR = J[J_R]
+    """The non-identity blocks of the error-state transition (module docstring), in place, with
+    the bias Jacobians of the preintegration record `p`. `velocity` and `feet` are the nominal
+    values after the interval."""
+    DU = rot.matmul3(D, rot.skew(up))
     F[0:3, 0:3] = D
-    F[0:3, 3:6] = JR
+    F[0:3, 3:6] = p.j_r
     F[6:9, 0:3] = -gravity * dt * DU
-    F[6:9, 3:6] = product3(D, J[J_V_G]) + product3(skew3(velocity[0], velocity[1], velocity[2]), JR)
+    F[6:9, 3:6] = rot.matmul3(D, p.j_v_g) + rot.matmul3(rot.skew(velocity), p.j_r)
     F[6:9, 6:9] = D
-    F[6:9, 9:12] = product3(D, J[J_V_A])
+    F[6:9, 9:12] = rot.matmul3(D, p.j_v_a)
     foot_theta = 0.5 * gravity * dt * dt * DU
-    foot_bias = -product3(D, J[J_P_G])
-    foot_accel_bias = -product3(D, J[J_P_A])
+    foot_bias = -rot.matmul3(D, p.j_p_g)
+    foot_accel_bias = -rot.matmul3(D, p.j_p_a)
     for leg in range(feet.shape[0]):
         r = FOOT0 + 3 * leg
         F[r:r + 3, 0:3] = foot_theta
-        F[r:r + 3, 3:6] = foot_bias + product3(skew3(feet[leg, 0], feet[leg, 1], feet[leg, 2]), JR)
+        F[r:r + 3, 3:6] = foot_bias + rot.matmul3(rot.skew(feet[leg]), p.j_r)
         F[r:r + 3, 6:9] = -dt * D
         F[r:r + 3, 9:12] = foot_accel_bias
         F[r:r + 3, r:r + 3] = D
 
 
-@njit(cache=True)
-def update_feet(P: np.ndarray, innovation: np.ndarray, legs: np.ndarray, variance: float, gate: float,
-                consider: bool, dx: np.ndarray, tilt_cov: np.ndarray) -> np.ndarray:
-    """Kalman update of P (in place) with the stance feet `legs` (their kinematics minus their
-    states: `innovation`, (n, 3)); each foot is first gated on its own 3x3 block. Writes the
-    correction dx (30,) and the covariance of its attitude part; returns the mask of feet used.
-    With `consider`, the accelerometer offset is a Schmidt-Kalman consider state: zero gain, and
-    the Joseph form with that gain = the optimal update plus K_c S K_c^T on its block."""
-    n = legs.shape[0]
-    accepted = np.zeros(n, dtype=np.bool_)
-    count = 0
-    for k in range(n):
-        accepted[k] = _foot_nis(P, FOOT0 + 3 * legs[k], variance, innovation[k]) <= gate
-        count += accepted[k]
-    dx[:] = 0.0
-    tilt_cov[:] = 0.0
-    if count == 0:
-        return accepted
-    index = np.empty(3 * count, dtype=np.int64)
-    z = np.empty(3 * count)
-    m = 0
-    for k in range(n):
-        if accepted[k]:
-            for i in range(3):
-                index[m] = FOOT0 + 3 * legs[k] + i
-                z[m] = innovation[k, i]
-                m += 1
-    PHt = np.ascontiguousarray(P[:, index])
-    S = np.ascontiguousarray(PHt[index, :])
-    for i in range(m):
-        S[i, i] += variance
-    gain = PHt @ np.linalg.inv(S)
+@register_jitable
+def kalman_correction(P: np.ndarray, PHt: np.ndarray, S_inverse: np.ndarray, innovation: np.ndarray,
+                      consider_start: int, consider_stop: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Kalman correction of P (in place, with the reset) for an innovation of covariance S,
+    P H^T = `PHt`. Returns the error dx to inject and the covariance K S K^T of its attitude part.
+
+    The error states [consider_start, consider_stop) are Schmidt-Kalman "consider" states: they
+    keep their value (zero gain) and their uncertainty. The Joseph form with that gain equals the
+    optimal update plus K_c S K_c^T = (P H^T)_c S^-1 (P H^T)_c^T on their block.
+    (Slices given to `@` are made contiguous: compiled, `@` on a strided view is slower.)"""
+    gain = PHt @ S_inverse
     P -= gain @ PHt.T
-    if consider:
-        P[9:FOOT0, 9:FOOT0] += PHt[9:FOOT0] @ gain[9:FOOT0].T
-        gain[9:FOOT0] = 0.0
-    dx[:] = gain @ z
-    tilt_cov[:] = gain[0:3] @ PHt[0:3].T
+    c0, c1 = consider_start, consider_stop
+    P[c0:c1, c0:c1] += np.ascontiguousarray(PHt[c0:c1]) @ np.ascontiguousarray(gain[c0:c1].T)
+    gain[c0:c1] = 0.0
+    dx = gain @ innovation
     if abs(dx[0]) + abs(dx[1]) + abs(dx[2]) > RESET_THRESHOLD:
         # Reset (Sola 2017, section 6.3): P <- G P G^T, G = I - [dtheta / 2]x on the attitude block.
-        G = np.eye(3) - skew3(0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2])
-        P[0:3, :] = G @ P[0:3, :]
-        P[:, 0:3] = P[:, 0:3] @ G.T
-    _symmetrise(P)
-    return accepted
+        G = np.eye(3) - rot.skew(0.5 * dx[0:3])
+        P[0:3, :] = G @ np.ascontiguousarray(P[0:3, :])
+        P[:, 0:3] = np.ascontiguousarray(P[:, 0:3]) @ G.T
+    symmetrise(P)
+    tilt_gain = np.ascontiguousarray(gain[0:3])
+    return dx, tilt_gain @ np.ascontiguousarray(PHt[0:3].T)
 
 
+@register_jitable
+def feet_correction(P: np.ndarray, measured: np.ndarray, feet: np.ndarray, legs: np.ndarray, variance: float,
+                    gate: float, consider_start: int, consider_stop: int) -> tuple:
+    """The stance feet's Kalman correction: the kinematics `measured` ((n, 3), legs `legs`) of
+    feet whose states are `feet` (6, 3), each gated on its own 3x3 block (NIS <= gate), then the
+    accepted ones in one update of P (in place; `kalman_correction`, noise `variance` I).
+    Returns (the (n,) mask of the feet used, dx, the covariance of dx's attitude part)."""
+    n = legs.shape[0]
+    innovation = np.empty((n, 3))
+    accepted = np.empty(n, dtype=np.bool_)
+    for k in range(n):
+        innovation[k] = measured[k] - feet[legs[k]]
+        accepted[k] = foot_nis(P, FOOT0 + 3 * legs[k], variance, innovation[k]) <= gate
+    used = legs[accepted]
+    if used.shape[0] == 0:
+        return accepted, np.zeros(P.shape[0]), np.zeros((3, 3))
+    index = np.empty(3 * used.shape[0], dtype=np.int64)
+    for k in range(used.shape[0]):
+        index[3 * k:3 * k + 3] = np.arange(FOOT0 + 3 * used[k], FOOT0 + 3 * used[k] + 3)
+    PHt = np.ascontiguousarray(P[:, index])      # H selects the feet's states
+    S = PHt[index] + variance * np.eye(index.shape[0])
+    dx, tilt_cov = kalman_correction(P, PHt, np.linalg.inv(S), innovation[accepted].ravel(), consider_start,
+                                     consider_stop)
+    return accepted, dx, tilt_cov
+
+
+# The feet update's settings, fields by name (`correct_feet`).
+FEET_UPDATE = np.dtype([("variance", "f8"), ("gate", "f8"),       # m^2 per axis; NIS
+                        ("consider_start", "i8"), ("consider_stop", "i8")])     # the consider block
+
+
+# Compiled: the filter corrects the feet at every encoder sample.
 @njit(cache=True)
-def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, variance: float, gate: float, consider: bool,
-                 dx: np.ndarray, tilt_cov: np.ndarray, q: rot.Quaternion, bias: np.ndarray, velocity: np.ndarray,
-                 accel_bias: np.ndarray, accel_cross: np.ndarray, feet: np.ndarray, tilt_sum: np.ndarray,
-                 tilt_cov_sum: np.ndarray) -> tuple:
-    """`update_feet` with the feet's kinematics `measured` ((n, 3), legs `legs`), then the
-    correction injected into the nominal state (its arrays in place) and its tilt part and that
-    part's covariance added to `tilt_sum` and `tilt_cov_sum` (BiasStepDetector.add, in place).
-    Returns (accepted, new q, whether any foot was)."""
-    accepted = update_feet(P, measured - feet[legs], legs, variance, gate, consider, dx, tilt_cov)
-    applied = accepted.any()
-    if applied:
-        q = inject_arrays(q, dx, bias, velocity, accel_bias, accel_cross, feet)
-        tilt_sum += dx[0:3]
-        tilt_cov_sum += tilt_cov
-    return accepted, q, applied
+def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, settings: np.ndarray, nominal: np.ndarray,
+                 q: rot.Quaternion, sums: np.ndarray) -> tuple:
+    """`feet_correction` with the FEET_UPDATE record `settings`, of the nominal state whose arrays
+    are the NOMINAL record `nominal` and whose attitude is q; its correction injected into that
+    state (in place) and its attitude part and that part's covariance added to the TILT_SUMS
+    record `sums` (BiasStepDetector.add). Returns (the mask of the feet used, the new q)."""
+    u, x, s = settings[0], nominal[0], sums[0]
+    accepted, dx, tilt_cov = feet_correction(P, measured, x.feet, legs, u.variance, u.gate, u.consider_start,
+                                             u.consider_stop)
+    if accepted.any():
+        q = inject_arrays(q, dx, x.bias, x.velocity, x.accel_bias, x.accel_cross, x.feet)
+        s.correction[:] += dx[0:3]
+        s.covariance[:] += tilt_cov
+    return accepted, q
 
 
-@njit(cache=True)
-def _foot_nis(P: np.ndarray, b: int, variance: float, y: np.ndarray) -> float:
-    """y^T S^-1 y, S = P[b:b+3, b:b+3] + variance I, through the Cholesky factor of S in closed
-    form: a LAPACK solve per foot cost more than the whole gate (S is symmetric positive definite;
-    the NIS agrees with np.linalg.solve's to a few ulps, and only decides the gate)."""
-    l00 = math.sqrt(P[b, b] + variance)
-    l10 = P[b + 1, b] / l00
-    l20 = P[b + 2, b] / l00
-    l11 = math.sqrt(P[b + 1, b + 1] + variance - l10 * l10)
-    l21 = (P[b + 2, b + 1] - l20 * l10) / l11
-    l22 = math.sqrt(P[b + 2, b + 2] + variance - l20 * l20 - l21 * l21)
-    z0 = y[0] / l00
-    z1 = (y[1] - l10 * z0) / l11
-    z2 = (y[2] - l20 * z0 - l21 * z1) / l22
-    return z0 * z0 + z1 * z1 + z2 * z2
-
-
-@njit(cache=True)
-def _symmetrise(P: np.ndarray) -> None:
+@register_jitable
+def symmetrise(P: np.ndarray) -> None:
     """P <- (P + P^T) / 2 in place (numba does not guard `P += P.T` against aliasing)."""
     for i in range(P.shape[0]):
         for j in range(i + 1, P.shape[0]):
             mean = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = mean
             P[j, i] = mean
+
+
+def consider_bounds(consider: slice | None) -> tuple[int, int]:
+    """[start, stop) of the consider block `consider` of the error state; empty without one."""
+    return (0, 0) if consider is None else (consider.start, consider.stop)
 
 
 class EkfEstimator(FusionEstimator):
@@ -176,8 +172,8 @@ class EkfEstimator(FusionEstimator):
         super().__init__(*args, **kwargs)
         self._F = np.eye(ERROR_DIM)
         self._noise_rates = self.noise.process(1.0)
-        self._dx = np.zeros(ERROR_DIM)
-        self._tilt_cov = np.zeros((3, 3))
+        self._feet_update = np.zeros(1, dtype=FEET_UPDATE)
+        self._feet_update[0] = self.noise.foot_position, self.foot_gate, *consider_bounds(self.consider)
 
     @classmethod
     def from_config(cls, config) -> "EkfEstimator":
@@ -187,28 +183,28 @@ class EkfEstimator(FusionEstimator):
 
     def _predict(self) -> None:
         state = self.state
-        state.q = predict(self.pre.buffer, state.velocity, state.feet, self.P, self._F, self._noise_rates,
-                          self._extra_noise(), self.gravity)
+        state.q = predict(self.pre.record, state.velocity, state.feet, self.P, self._F, self._noise_rates,
+                          self._extra_noise())
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)
         g = self.gravity
         H = np.zeros((3, ERROR_DIM))
-        H[:, THETA] = skew((g * ux, g * uy, g * uz))
+        H[:, THETA] = rot.skew((g * ux, g * uy, g * uz))
         H[:, ACCEL_BIAS] = I3
         H[2, ACCEL_CROSS] = g * ux, g * uy
         cx, cy = self.state.accel_cross
         predicted = self.state.accel_bias + (g * ux, g * uy, g * (uz + cx * ux + cy * uy))
         return self._correct(H, mean_force - predicted, variance, gate)
 
-    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        state, dx, tilt_cov = self.state, self._dx, self._tilt_cov
-        # The tilt correction is recorded (_record_tilt_correction) inside the kernel.
-        accepted, q, applied = correct_feet(self.P, measured, legs, variance, gate, self.consider is not None, dx,
-                                            tilt_cov, state.q, state.bias, state.velocity, state.accel_bias,
-                                            state.accel_cross, state.feet, *self.bias_steps.sums)
-        if applied:
-            state.q = q
+    def _hold_accel_bias(self) -> None:
+        super()._hold_accel_bias()
+        self._feet_update[0]["consider_start"], self._feet_update[0]["consider_stop"] = consider_bounds(self.consider)
+
+    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        state = self.state
+        accepted, state.q = correct_feet(self.P, measured, legs, self._feet_update, self.nominal, state.q,
+                                         self.bias_steps.sums)
         return accepted
 
     def _correct(self, H: np.ndarray, innovation: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
@@ -216,32 +212,15 @@ class EkfEstimator(FusionEstimator):
         PHt = self.P @ H.T
         S = H @ PHt
         S.flat[::4] += variance
-        S_inverse = inverse3(S)
+        S_inverse = np.linalg.inv(S)
         nis = float(innovation @ S_inverse @ innovation)
         if not nis <= gate:
             return False, nis
-        self._apply(PHt, S_inverse, innovation)
+        dx, tilt_cov = kalman_correction(self.P, PHt, S_inverse, innovation, *consider_bounds(self.consider))
+        self._inject(dx, tilt_cov)
         return True, nis
 
-    def _apply(self, PHt: np.ndarray, S_inverse: np.ndarray, innovation: np.ndarray) -> None:
-        """Kalman correction, error injection and reset."""
-        gain = PHt @ S_inverse
-        P = self.P - gain @ PHt.T
-        if self.consider is not None:
-            # Schmidt-Kalman: "consider" states keep their value (zero gain) and their uncertainty.
-            # The Joseph form with that gain equals the optimal update plus K_c S K_c^T on their block.
-            c = self.consider
-            P[c, c] += PHt[c] @ gain[c].T       # K_c S K_c^T = (P H^T)_c S^-1 (P H^T)_c^T
-            gain[c] = 0.0
-        dx = gain @ innovation
-        dtheta = dx[THETA]
-        if abs(dtheta[0]) + abs(dtheta[1]) + abs(dtheta[2]) > RESET_THRESHOLD:
-            # Reset (Sola 2017, section 6.3): P <- G P G^T, G = I - [dtheta / 2]x on the attitude block.
-            G = I3 - skew(0.5 * dtheta)
-            P[THETA, :] = G @ P[THETA, :]
-            P[:, THETA] = P[:, THETA] @ G.T
-        P += P.T
-        P *= 0.5
-        self.P = P
+    def _inject(self, dx: np.ndarray, tilt_cov: np.ndarray) -> None:
+        """Inject a correction dx into the nominal state, and record its attitude part."""
         inject_in_place(self.state, dx)
-        self._record_tilt_correction(dtheta, gain[THETA] @ PHt[THETA].T)
+        self._record_tilt_correction(dx[THETA], tilt_cov)

@@ -42,15 +42,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from scipy.stats import chi2
 
 from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.leg_odometry import StanceTracker
-from estimators.linalg import cross, product3, skew
 from estimators.stillness import StillWindow
-from estimators.preintegration import ACCEPTED, DT, DV, REJECTED, Preintegration, imu_sample
+from estimators.preintegration import ACCEPTED, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.model.kinematics import LegGeometry
@@ -73,6 +73,15 @@ FLOAT64 = np.dtype(np.float64)
 def foot(leg: int) -> slice:
     """The error-state slice of foot `leg`."""
     return slice(FOOT0 + 3 * leg, FOOT0 + 3 + 3 * leg)
+
+
+# The arrays of a nominal state, fields by name: the EKF's state lives in one such record, which
+# its compiled feet update injects into (`FusionEstimator.nominal`).
+NOMINAL = np.dtype([("bias", "f8", 3), ("velocity", "f8", 3), ("accel_bias", "f8", 3), ("accel_cross", "f8", 2),
+                    ("feet", "f8", (NUM_FEET, 3))])
+
+# The bias step detector's sums (`BiasStepDetector.sums`).
+TILT_SUMS = np.dtype([("correction", "f8", 3), ("covariance", "f8", (3, 3))])
 
 
 @dataclass
@@ -140,8 +149,25 @@ def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
 def reset_jacobian(dtheta: np.ndarray) -> np.ndarray:
     """G of the error reset after injecting dtheta into q (Sola 2017, section 6.3)."""
     jacobian = np.eye(ERROR_DIM)
-    jacobian[THETA, THETA] -= 0.5 * skew(dtheta)
+    jacobian[THETA, THETA] -= 0.5 * rot.skew(dtheta)
     return jacobian
+
+
+@register_jitable
+def foot_nis(P: np.ndarray, b: int, variance: float, y: np.ndarray) -> float:
+    """A foot's normalised innovation squared y^T S^-1 y, S = P[b:b+3, b:b+3] + variance I (its
+    state's block, from error-state index b), through the Cholesky factor of S in closed form (S is
+    symmetric positive definite)."""
+    l00 = math.sqrt(P[b, b] + variance)
+    l10 = P[b + 1, b] / l00
+    l20 = P[b + 2, b] / l00
+    l11 = math.sqrt(P[b + 1, b + 1] + variance - l10 * l10)
+    l21 = (P[b + 2, b + 1] - l20 * l10) / l11
+    l22 = math.sqrt(P[b + 2, b + 2] + variance - l20 * l20 - l21 * l21)
+    z0 = y[0] / l00
+    z1 = (y[1] - l10 * z0) / l11
+    z2 = (y[2] - l20 * z0 - l21 * z1) / l22
+    return z0 * z0 + z1 * z1 + z2 * z2
 
 
 def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
@@ -172,9 +198,9 @@ def inject(state: NominalState, dx: np.ndarray) -> NominalState:
 def horizontal_basis(up: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal rows spanning the plane perpendicular to `up`."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    first = cross(up, helper)
+    first = np.cross(up, helper)
     first /= np.linalg.norm(first)
-    return np.array([first, cross(up, first)])
+    return np.array([first, np.cross(up, first)])
 
 
 class BiasStepDetector:
@@ -188,18 +214,14 @@ class BiasStepDetector:
         self.threshold = float(chi2.ppf(probability, 2))
         self.detections = 0
         self._start: float | None = None
-        self._sum = np.zeros(3)
-        self._covariance = np.zeros((3, 3))
+        # The window's sums of corrections and of their covariances, a TILT_SUMS record which
+        # `add` adds to (compiled updates add to it themselves).
+        self.sums = np.zeros(1, dtype=TILT_SUMS)
+        self._sum, self._covariance = self.sums[0]["correction"], self.sums[0]["covariance"]
 
     def add(self, correction: np.ndarray, covariance: np.ndarray) -> None:
         self._sum += correction
         self._covariance += covariance
-
-    @property
-    def sums(self) -> tuple[np.ndarray, np.ndarray]:
-        """The window's sums of corrections (3,) and of their covariances (3, 3), which `add`
-        adds to in place (compiled updates add to them themselves)."""
-        return self._sum, self._covariance
 
     def check(self, t: float, q: rot.Quaternion) -> bool:
         """At the end of each window: True when the bias moved (q: the current attitude)."""
@@ -211,7 +233,9 @@ class BiasStepDetector:
         drift = basis @ self._sum
         covariance = basis @ self._covariance @ basis.T
         moved = bool(np.linalg.det(covariance) > 0 and drift @ np.linalg.solve(covariance, drift) > self.threshold)
-        self._start, self._sum, self._covariance = t, np.zeros(3), np.zeros((3, 3))
+        self._start = t
+        self._sum[:] = 0.0
+        self._covariance[:] = 0.0
         self.detections += moved
         return moved
 
@@ -222,7 +246,8 @@ class FusionEstimator(Estimator):
 
     Subclasses hold the filter core: `state` (NominalState), `P` (30x30 error covariance) and the
     three methods below, which record every applied update's tilt correction
-    (`_record_tilt_correction`, or `bias_steps.sums` in a compiled update). The
+    (`_record_tilt_correction`, or `bias_steps.sums` in a compiled update). The state's arrays
+    are views of the NOMINAL record `nominal` unless a subclass replaces them (the UKF does). The
     filter steps (`_step`) at every encoder sample, and every MAX_STEP without them; between steps
     each IMU sample only adds to the preintegration and the attitude it reports.
     """
@@ -237,9 +262,6 @@ class FusionEstimator(Estimator):
         self.foot_radius = foot_radius
         self.imu_position = np.zeros(3) if imu_position is None else np.asarray(imu_position, dtype=float)
         self.accel_gate = float(chi2.ppf(params.accel_gate_probability, 3))
-        # Squared body acceleration beyond which a specific force sample is an outlier.
-        self._accel_gate = self.accel_gate * self.noise.body_accel
-        self._body_variance = self.noise.body_accel
         self.foot_gate = float(chi2.ppf(params.foot_gate_probability, 3))
         self.legs = StanceTracker(geometry, params.stance_min_force, self.imu_position)
         self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
@@ -253,9 +275,12 @@ class FusionEstimator(Estimator):
                                        "never": -math.inf}[params.accel_bias_estimation]
         self.consider: slice | None = None      # set by _hold_accel_bias
         self.state: NominalState | None = None
+        self.nominal = np.zeros(1, dtype=NOMINAL)
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
-        self.pre = Preintegration()
+        # The specific force gate: the squared body acceleration beyond which a sample is an
+        # outlier, and the body acceleration's variance.
+        self.pre = Preintegration(gravity, self.accel_gate * self.noise.body_accel, self.noise.body_accel)
         self.rejected_accel = 0
         self.tilt_restarts = 0
         self.velocity_restarts = 0
@@ -278,9 +303,9 @@ class FusionEstimator(Estimator):
         only if the NIS <= gate. Returns (applied, NIS)."""
 
     @abc.abstractmethod
-    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
-        """Update of the tracked feet `legs` with their kinematics (n, 3); a foot whose NIS exceeds
-        the gate is left out. Returns the (n,) mask of the feet used."""
+    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """Update of the tracked feet `legs` with their kinematics (n, 3), noise `noise.foot_position`;
+        a foot whose NIS exceeds `foot_gate` is left out. Returns the (n,) mask of the feet used."""
 
     def _extra_noise(self) -> np.ndarray:
         """Process noise of this step beyond the white noises: the attitude variance of the gyro's
@@ -310,10 +335,10 @@ class FusionEstimator(Estimator):
         """As Estimator's, and a reading that is not finite counts as missing too."""
         if self.state is None:
             return self._initialise(t, gyro, accel)
-        dt, buffer = t - self.t, self.pre.buffer
+        dt = t - self.t
         status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(
-            buffer, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
-            accel is not None, max(dt, 0.0), self.gravity, self._accel_gate, self._body_variance)
+            self.pre.record, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
+            accel is not None, max(dt, 0.0))
         if dt > 0:
             self.t = t
         nominal = False      # the sample's attitude gives way to the nominal one after a restart or a step
@@ -321,7 +346,7 @@ class FusionEstimator(Estimator):
             self._accel_rejected_since = None
         elif status == REJECTED and self._accel_rejected(t, accel):
             nominal = True
-        if buffer[DT] >= MAX_STEP:
+        if self.pre.dt >= MAX_STEP:
             self._step()
             nominal = True
         if nominal:
@@ -351,7 +376,7 @@ class FusionEstimator(Estimator):
         if dt <= 0:
             return
         mean_force = self._mean_force
-        fx, fy, fz, tx, ty, tz, turn_squared = interval_summary(self.pre.buffer, mean_force, self._body_turn)
+        fx, fy, fz, tx, ty, tz, turn_squared = interval_summary(self.pre.record, mean_force, self._body_turn)
         self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2
         still_force = self.still.add(dt, (tx, ty, tz), (fx, fy, fz))
         self._predict()
@@ -396,7 +421,10 @@ class FusionEstimator(Estimator):
             return None
         roll, pitch = rot.tilt_from_specific_force(*accel)
         q = rot.quaternion_from_euler(roll, pitch, 0.0)
-        self.state = NominalState(q, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros((NUM_FEET, 3)))
+        self.nominal[0] = np.zeros((), dtype=NOMINAL)
+        fields = self.nominal[0]
+        self.state = NominalState(q, fields["bias"], fields["velocity"], fields["accel_bias"], fields["feet"],
+                                  fields["accel_cross"])
         self.P = initial_covariance(self.params, q)
         self.t = t
         if t >= self.learn_accel_bias_until:
@@ -435,8 +463,7 @@ class FusionEstimator(Estimator):
             self._body_turn[:] = 0.0
         measured, restart = reading.measured, reading.new
         if len(reading.tracked):
-            used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0),
-                                      self.noise.foot_position, self.foot_gate)
+            used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0))
             if np.count_nonzero(used) < len(used):
                 # A foot whose kinematics disagree slipped (or read badly): start it again. When most
                 # of them disagree, the filter's velocity is wrong instead: reopen it too.
@@ -459,9 +486,7 @@ class FusionEstimator(Estimator):
 
     def _restart_foot(self, leg: int, measured: np.ndarray) -> None:
         """A new foothold: its position is the kinematics, uncorrelated with the rest."""
-        feet = self.state.feet.copy()
-        feet[leg] = measured
-        self.state.feet = feet
+        self.state.feet[leg] = measured
         block = foot(leg)
         self.P[block, :] = 0.0
         self.P[:, block] = 0.0
@@ -497,12 +522,13 @@ class FusionEstimator(Estimator):
 
 # Compiled: as numpy and Python calls it cost 5.8 us per filter step, against 0.9 us.
 @njit(cache=True)
-def interval_summary(buffer: np.ndarray, mean_force: np.ndarray, body_turn: np.ndarray) -> tuple:
-    """The preintegrated interval's mean specific force, written into `mean_force`, and the gyro's
-    rotation vector (without the filter's corrections), added to `body_turn`. Returns both (x, y,
-    z each) and turn . turn."""
-    mean_force[:] = buffer[DV] / buffer[DT]
-    turn = np.array(rot.log((buffer[16], buffer[17], buffer[18], buffer[19])))
+def interval_summary(record: np.ndarray, mean_force: np.ndarray, body_turn: np.ndarray) -> tuple:
+    """The mean specific force of the interval preintegrated in `record`, written into
+    `mean_force`, and the gyro's rotation vector (without the filter's corrections), added to
+    `body_turn`. Returns both (x, y, z each) and turn . turn."""
+    p = record[0]
+    mean_force[:] = p.dv / p.dt
+    turn = np.array(rot.log((p.dq[0], p.dq[1], p.dq[2], p.dq[3])))
     body_turn += turn
     return mean_force[0], mean_force[1], mean_force[2], turn[0], turn[1], turn[2], turn @ turn
 
@@ -515,6 +541,6 @@ def output_covariances(P: np.ndarray, bias: np.ndarray, roll: float, pitch: floa
     output's arrays, new, from the error covariance P and the terrain's covariance at its last
     update, grown over `elapsed`."""
     euler = rot.euler_jacobian(roll, pitch)
-    attitude_cov = product3(product3(euler, P[0:3, 0:3]), euler.T)
+    attitude_cov = rot.matmul3(rot.matmul3(euler, P[0:3, 0:3]), euler.T)
     return (attitude_cov, bias.copy(), np.ascontiguousarray(P[3:6, 3:6]),
             grown_covariance(terrain_cov, terrain_growth, elapsed, attitude_cov[:2, :2]))

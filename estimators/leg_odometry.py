@@ -38,18 +38,34 @@ class Reading(NamedTuple):
     new: np.ndarray           # legs measurable without one (planted since the last reading)
 
 
+# A tracker's geometry, state and reading buffers, fields by name (`StanceTracker.record`).
+STANCE_TRACKER = np.dtype([
+    ("base_angle", "f8", NUM_LEGS), ("base_distance", "f8", NUM_LEGS),     # rad, m: the legs' bases
+    ("femur", "f8"), ("tibia", "f8"),                                       # m
+    ("origin", "f8", 3),                  # m, body frame: where `measured` is taken from
+    ("contact", "u1", NUM_LEGS),          # planted feet, from the latest foot sample
+    ("tracked", "u1", NUM_LEGS),          # feet whose filter state is valid
+    ("previous", "f8", 3 * NUM_LEGS),     # rad, the joint angles of the previous rolling reading
+    ("have_previous", "u1"),
+    ("feet", "f8", (NUM_LEGS, 3)), ("measured", "f8", (NUM_LEGS, 3)), ("measurable", "u1", NUM_LEGS),
+    ("legs", "i8", NUM_LEGS),             # tracked legs, then new ones
+], align=True)     # (flags as u1: numba's records hold no boolean arrays; Python sees them as bool)
+
+
 class StanceTracker:
     def __init__(self, geometry: LegGeometry, min_force: float = 0.0, origin: np.ndarray | None = None):
         self.geometry = geometry
         self.min_force = min_force
-        self.origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=float)   # m, body frame
-        self.contact = np.zeros(NUM_LEGS, dtype=bool)     # planted feet, from the latest foot sample
-        self.tracked = np.zeros(NUM_LEGS, dtype=bool)     # feet whose filter state is valid
-        self._previous_positions: np.ndarray | None = None
-        self._feet = np.empty((NUM_LEGS, 3))
-        self._measured = np.empty((NUM_LEGS, 3))
-        self._measurable = np.empty(NUM_LEGS, dtype=bool)
-        self._legs = np.empty(NUM_LEGS, dtype=np.int64)     # tracked legs, then new ones
+        self.record = np.zeros(1, dtype=STANCE_TRACKER)
+        fields = self.record[0]
+        fields["base_angle"], fields["base_distance"] = geometry.base_angle, geometry.base_distance
+        fields["femur"], fields["tibia"] = geometry.femur, geometry.tibia
+        self.origin = fields["origin"]
+        if origin is not None:
+            self.origin[:] = origin
+        self.contact = fields["contact"].view(np.bool_)
+        self.tracked = fields["tracked"].view(np.bool_)
+        self._buffers = fields["feet"], fields["measured"], fields["measurable"].view(np.bool_), fields["legs"]
 
     def add_contacts(self, contact: np.ndarray, normal_forces: np.ndarray) -> None:
         contact, normal_forces = np.asarray(contact, dtype=bool), np.asarray(normal_forces, dtype=float)
@@ -74,18 +90,11 @@ class StanceTracker:
         rotation vector since then, plus the joints') crossed with r n, n = `up` in the body frame;
         not at all for a leg without two valid readings."""
         positions = np.asarray(positions, dtype=float).reshape(3 * NUM_LEGS)
-        g = self.geometry
-        roll = rolling is not None and self._previous_positions is not None
-        filter_feet, body_turn, up, radius = rolling if roll else _NO_ROLLING
-        previous = self._previous_positions if roll else positions
-        if rolling is not None:
-            self._previous_positions = positions
-        tracked_count, new_count = _read(positions, g.base_angle, g.base_distance, g.femur, g.tibia, self.contact,
-                                         self.tracked, roll, previous, filter_feet, body_turn, up, radius, self.origin,
-                                         self._feet, self._measured, self._measurable, self._legs)
-        legs = self._legs
-        return Reading(self._feet, self._measured, self._measurable, legs[:tracked_count],
-                       legs[tracked_count:tracked_count + new_count])
+        filter_feet, body_turn, up, radius = _NO_ROLLING if rolling is None else rolling
+        tracked_count, new_count = _read(positions, self.record, rolling is not None, filter_feet, body_turn, up,
+                                         radius)
+        feet, measured, measurable, legs = self._buffers
+        return Reading(feet, measured, measurable, legs[:tracked_count], legs[tracked_count:tracked_count + new_count])
 
 
 _NO_ROLLING = (np.zeros((NUM_LEGS, 3)), np.zeros(3), (0.0, 0.0, 0.0), 0.0)
@@ -94,30 +103,34 @@ _NO_ROLLING = (np.zeros((NUM_LEGS, 3)), np.zeros(3), (0.0, 0.0, 0.0), 0.0)
 # Compiled: the fusion filters read every encoder sample through it; as separate kernel and
 # numpy calls (feet, rolling shift, masks, index lists) it cost 16 us a reading, against 4 us.
 @njit(cache=True)
-def _read(positions, base_angle, base_distance, a2, a3, contact, tracked, roll, previous, filter_feet, body_turn,
-          up, radius, origin, feet_out, measured_out, measurable_out, legs_out):
-    if roll:
-        shift = _rolling_shift(positions, previous, base_angle, body_turn, up, radius)
-        for leg in range(NUM_LEGS):
-            if tracked[leg]:
-                filter_feet[leg] += shift[leg]
-    feet = world_feet_arrays(_IDENTITY, _ORIGIN, _ORIGIN, _ORIGIN, positions, _NO_RATES, base_angle, base_distance,
-                             a2, a3)[0]
-    feet_out[:] = feet
-    for leg in range(NUM_LEGS):
-        for i in range(3):
-            measured_out[leg, i] = feet[leg, i] - origin[i]
+def _read(positions, record, rolling, filter_feet, body_turn, up, radius):
+    """The reading of the joint angles `positions` into the STANCE_TRACKER record's buffers; with
+    `rolling`, the tracked feet of `filter_feet` roll first (StanceTracker.read). Returns the
+    numbers of tracked and new legs."""
+    t = record[0]
+    if rolling:
+        if t.have_previous:
+            shift = _rolling_shift(positions, t.previous, t.base_angle, body_turn, up, radius)
+            for leg in range(NUM_LEGS):
+                if t.tracked[leg]:
+                    filter_feet[leg] += shift[leg]
+        t.previous[:] = positions
+        t.have_previous = True
+    feet = world_feet_arrays(_IDENTITY, _ORIGIN, _ORIGIN, _ORIGIN, positions, _NO_RATES, t.base_angle,
+                             t.base_distance, t.femur, t.tibia)[0]
+    t.feet[:] = feet
+    t.measured[:] = feet - t.origin
     tracked_count = 0
     for leg in range(NUM_LEGS):
-        measurable_out[leg] = contact[leg] and np.isfinite(feet[leg, 0]) and np.isfinite(feet[leg, 1]) \
+        t.measurable[leg] = t.contact[leg] and np.isfinite(feet[leg, 0]) and np.isfinite(feet[leg, 1]) \
             and np.isfinite(feet[leg, 2])
-        if measurable_out[leg] and tracked[leg]:
-            legs_out[tracked_count] = leg
+        if t.measurable[leg] and t.tracked[leg]:
+            t.legs[tracked_count] = leg
             tracked_count += 1
     new_count = 0
     for leg in range(NUM_LEGS):
-        if measurable_out[leg] and not tracked[leg]:
-            legs_out[tracked_count + new_count] = leg
+        if t.measurable[leg] and not t.tracked[leg]:
+            t.legs[tracked_count + new_count] = leg
             new_count += 1
     return tracked_count, new_count
 

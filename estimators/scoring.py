@@ -25,6 +25,7 @@ from scipy.stats import chi2
 
 from estimators.base import Estimate
 from estimators.terrain import fit_plane, heading_terrain_angles, slopes_and_height
+from testbed.model.spatial import wrap_angle as wrap
 
 METRIC_KEYS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
                "anees_tilt")
@@ -79,10 +80,6 @@ def up_in_body(roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
 def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Row-wise angle between unit vectors, accurate for small angles."""
     return np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ij,ij->i", u, v))
-
-
-def wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def truth_at(t: np.ndarray, truth_t: np.ndarray, truth_rotation: np.ndarray) -> np.ndarray:

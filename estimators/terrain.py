@@ -20,7 +20,12 @@ from scipy.stats import chi2
 
 from testbed.model import spatial as rot
 from estimators.config import TerrainEstimatorConfig
-from estimators.linalg import inverse3, product3
+
+# The filter's state and constants, fields by name (`TerrainFilter.record`).
+TERRAIN_FILTER = np.dtype([("x", "f8", 3),             # a, b (slopes), height (m)
+                           ("P", "f8", (3, 3)),        # covariance of x
+                           ("rates", "f8", 3),         # random-walk variance rates of x, per s
+                           ("gate", "f8")])            # NIS beyond which the filter restarts
 
 MIN_FOOT_SPREAD = 0.03    # m: feet this close to a line (one side's three feet) define no reliable plane
 YAW_TOLERANCE = 1e-3      # rad: heading change that refreshes the reported terrain angles
@@ -102,7 +107,7 @@ def plane_measurement(points: np.ndarray, position_std: float, foot_radius: floa
     a, b, c = coefficients[0], coefficients[1], coefficients[2]
     s = math.sqrt(1.0 + a * a + b * b)
     jacobian = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [c * a / s**3, c * b / s**3, -1.0 / s]])
-    return True, np.array([a, b, -c / s + foot_radius]), product3(product3(jacobian, covariance), jacobian.T)
+    return True, np.array([a, b, -c / s + foot_radius]), rot.matmul3(rot.matmul3(jacobian, covariance), jacobian.T)
 
 
 @njit(cache=True)
@@ -125,23 +130,22 @@ def heading_terrain_angles(a: float, b: float, yaw: float) -> tuple[float, float
 
 
 @njit(cache=True)
-def _kalman_update(x: np.ndarray, P: np.ndarray, q: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray,
-                   gate: float) -> bool:
-    """Random-walk prediction over `elapsed` and update with z (covariance R), in place; beyond the
-    gate (or NaN) the filter restarts on z instead. Returns True on a restart."""
-    prior = P.copy()
-    for i in range(3):
-        prior[i, i] += q[i] * elapsed
-    innovation = z - x
+def _kalman_update(record: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray) -> bool:
+    """Random-walk prediction over `elapsed` and update with z (covariance R) of the TERRAIN_FILTER
+    record, in place; beyond the gate (or NaN) the filter restarts on z instead. Returns True on a
+    restart."""
+    f = record[0]
+    prior = f.P + np.diag(f.rates * elapsed)
+    innovation = z - f.x
     S_inverse = np.linalg.inv(prior + R)
-    if not innovation @ S_inverse @ innovation <= gate:
-        x[:] = z
-        P[:] = R
+    if not innovation @ S_inverse @ innovation <= f.gate:
+        f.x[:] = z
+        f.P[:] = R
         return True
-    gain = product3(prior, S_inverse)
-    x += gain @ innovation
-    posterior = prior - product3(gain, prior)
-    P[:] = 0.5 * (posterior + posterior.T)
+    gain = rot.matmul3(prior, S_inverse)
+    f.x[:] += rot.matvec3(gain, innovation)
+    posterior = prior - rot.matmul3(gain, prior)
+    f.P[:] = 0.5 * (posterior + posterior.T)
     return False
 
 
@@ -149,20 +153,21 @@ UPDATED, RESTARTED, NO_PLANE = 0, 1, 2     # what became of a measurement
 
 
 @njit(cache=True)
-def _update(x: np.ndarray, P: np.ndarray, q: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray, gate: float,
-            first: bool) -> int:
+def _update(record: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray, first: bool) -> int:
     """`_kalman_update`, or on the `first` measurement x = z, P = R."""
     if first:
-        x[:] = z
-        P[:] = R
+        f = record[0]
+        f.x[:] = z
+        f.P[:] = R
         return UPDATED
-    return RESTARTED if _kalman_update(x, P, q, elapsed, z, R, gate) else UPDATED
+    return RESTARTED if _kalman_update(record, elapsed, z, R) else UPDATED
 
 
 # Compiled: at every encoder sample; as numpy and separate kernel calls it cost 18 us against 3 us.
 @njit(cache=True)
-def _update_from_feet(feet: np.ndarray, down: np.ndarray, q: tuple, position_std: float, foot_radius: float,
-                      x: np.ndarray, P: np.ndarray, rates: np.ndarray, elapsed: float, gate: float, first: bool) -> int:
+def _update_from_feet(feet: np.ndarray, down: np.ndarray, q: rot.Quaternion, position_std: float, foot_radius: float,
+                      record: np.ndarray, elapsed: float, first: bool) -> int:
+    """`_update` with the support plane of the feet `down`, levelled by q, if they define one."""
     count = 0
     for leg in range(feet.shape[0]):
         count += down[leg]
@@ -177,49 +182,50 @@ def _update_from_feet(feet: np.ndarray, down: np.ndarray, q: tuple, position_std
     valid, z, R = plane_measurement(stance @ rot.to_matrix(q).T, position_std, foot_radius)
     if not valid:
         return NO_PLANE
-    return _update(x, P, rates, elapsed, z, R, gate, first)
+    return _update(record, elapsed, z, R, first)
 
 
 class TerrainFilter:
     """Random-walk Kalman filter on x = (a, b, height) of the support plane (gravity-aligned axes)."""
 
     def __init__(self, params: TerrainEstimatorConfig):
-        self.x: np.ndarray | None = None
-        self.P = np.zeros((3, 3))
-        self.q = np.array([params.slope_random_walk**2, params.slope_random_walk**2, params.height_random_walk**2])
-        self.gate = float(chi2.ppf(params.change_gate_probability, 3))
+        self.record = np.zeros(1, dtype=TERRAIN_FILTER)
+        fields = self.record[0]
+        self.q = fields["rates"]
+        self.q[:] = params.slope_random_walk**2, params.slope_random_walk**2, params.height_random_walk**2
+        fields["gate"] = self.gate = float(chi2.ppf(params.change_gate_probability, 3))
+        self.P = fields["P"]
+        self._x = fields["x"]
+        self.started = False
         self.t = -math.inf
         self.restarts = 0
         self._output: tuple | None = None
         self._output_yaw = 0.0
 
+    @property
+    def x(self) -> np.ndarray | None:
+        """(a, b, height), None before the first plane."""
+        return self._x if self.started else None
+
     def update(self, t: float, measurement: np.ndarray, covariance: np.ndarray) -> None:
         """A plane measurement (a, b, height) with its covariance."""
-        x, P, first = self._filter_arrays()
-        self._updated(t, x, P, _update(x, P, self.q, self._elapsed(t), measurement, covariance, self.gate, first))
+        self._updated(t, _update(self.record, self._elapsed(t), measurement, covariance, not self.started))
 
     def add_feet(self, t: float, feet: np.ndarray, down: np.ndarray, q: tuple, position_std: float,
                  foot_radius: float) -> None:
         """The support plane of the feet `down` (the (6,) mask of the rows of `feet`, (6, 3) in the
         body frame from O_b) levelled by the attitude q (world_from_body), if they define one."""
-        x, P, first = self._filter_arrays()
-        status = _update_from_feet(feet, down, q, position_std, foot_radius, x, P, self.q, self._elapsed(t), self.gate,
-                                   first)
-        self._updated(t, x, P, status)
-
-    def _filter_arrays(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """x and P to update in place, and whether this is the first measurement (new arrays then)."""
-        if self.x is None:
-            return np.zeros(3), np.zeros((3, 3)), True
-        return self.x, self.P, False
+        self._updated(t, _update_from_feet(feet, down, q, position_std, foot_radius, self.record, self._elapsed(t),
+                                           not self.started))
 
     def _elapsed(self, t: float) -> float:
         return max(0.0, t - self.t)
 
-    def _updated(self, t: float, x: np.ndarray, P: np.ndarray, status: int) -> None:
+    def _updated(self, t: float, status: int) -> None:
         if status == NO_PLANE:
             return
-        self.x, self.P, self.t = x, P, t
+        self.started = True
+        self.t = t
         self.restarts += status == RESTARTED
         self._output = None
 
@@ -251,5 +257,5 @@ def _heading_output(x: np.ndarray, P: np.ndarray, q: np.ndarray, yaw: float) -> 
     jacobian = np.zeros((3, 3))
     jacobian[:2, :2] = d_angles
     jacobian[2, 2] = 1.0
-    return (roll, pitch, x[2], product3(product3(jacobian, P), jacobian.T),
-            product3(product3(jacobian, np.diag(q)), jacobian.T))
+    return (roll, pitch, x[2], rot.matmul3(rot.matmul3(jacobian, P), jacobian.T),
+            rot.matmul3(rot.matmul3(jacobian, np.diag(q)), jacobian.T))

@@ -23,17 +23,15 @@ import math
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy.spatial.transform import Rotation
 
 from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.config import FusionConfig, TerrainEstimatorConfig, UkfConfig
 from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
-                               NominalState, apply_preintegration, foot, inject, reset_jacobian)
-from estimators.linalg import inverse3
-from estimators.preintegration import J_P_A, J_P_G, J_R, J_V_A, J_V_G, Preintegration
+                               NominalState, apply_preintegration, foot, foot_nis, inject, reset_jacobian)
+from estimators.preintegration import Preintegration
 from testbed.model.kinematics import LegGeometry
-
-I3 = np.eye(3)
 
 
 def difference(state: NominalState, reference: NominalState) -> np.ndarray:
@@ -46,12 +44,10 @@ def difference(state: NominalState, reference: NominalState) -> np.ndarray:
 
 def corrected(pre: Preintegration, gyro_bias_error: np.ndarray, accel_bias_error: np.ndarray) -> Preintegration:
     """The increments as if integrated with biases larger by the given errors (first order)."""
-    out = Preintegration()
-    out.buffer[:] = pre.buffer
-    J = pre.jacobians
-    out.dq[:] = rot.multiply(tuple(pre.dq), rot.exp(*(J[J_R] @ gyro_bias_error)))
-    out.dv[:] = pre.dv + J[J_V_G] @ gyro_bias_error + J[J_V_A] @ accel_bias_error
-    out.dp[:] = pre.dp + J[J_P_G] @ gyro_bias_error + J[J_P_A] @ accel_bias_error
+    out = pre.copy()
+    out.dq[:] = rot.multiply(tuple(pre.dq), rot.exp(*(pre.j_r @ gyro_bias_error)))
+    out.dv[:] = pre.dv + pre.j_v_g @ gyro_bias_error + pre.j_v_a @ accel_bias_error
+    out.dp[:] = pre.dp + pre.j_p_g @ gyro_bias_error + pre.j_p_a @ accel_bias_error
     return out
 
 
@@ -59,22 +55,21 @@ def propagate_errors(sigmas: np.ndarray, before: NominalState, after: NominalSta
                      gravity: float) -> np.ndarray:
     """fusion.apply_preintegration on every error sigma point (rows of `sigmas`) at once: inject into
     `before`, move over the interval with the point's biases, return the errors about `after`."""
-    count, dt, J = len(sigmas), pre.dt, pre.jacobians
+    count, dt = len(sigmas), pre.dt
     gyro_error, accel_error = sigmas[:, BIAS], sigmas[:, ACCEL_BIAS]
-    q = rot.multiply_batch(np.array(before.q), rot.exp_batch(sigmas[:, THETA]))
+    attitude = Rotation.from_quat(before.q) * Rotation.from_rotvec(sigmas[:, THETA])
     velocity = before.velocity + sigmas[:, VEL]
     feet = before.feet + sigmas[:, FEET].reshape(count, NUM_FEET, 3)
-    turn_q = rot.multiply_batch(pre.dq, rot.exp_batch(gyro_error @ J[J_R].T))
-    turn = rot.to_matrix_batch(turn_q)
-    dv = pre.dv + gyro_error @ J[J_V_G].T + accel_error @ J[J_V_A].T
-    dp = pre.dp + gyro_error @ J[J_P_G].T + accel_error @ J[J_P_A].T
-    up = rot.to_matrix_batch(q)[:, 2, :]                        # third row of R: R^T e_z
+    step = Rotation.from_quat(pre.dq) * Rotation.from_rotvec(gyro_error @ pre.j_r.T)
+    turn = step.as_matrix()
+    dv = pre.dv + gyro_error @ pre.j_v_g.T + accel_error @ pre.j_v_a.T
+    dp = pre.dp + gyro_error @ pre.j_p_g.T + accel_error @ pre.j_p_a.T
+    up = attitude.as_matrix()[:, 2, :]                        # third row of R: R^T e_z
     moved_velocity = np.einsum("nji,nj->ni", turn, velocity - gravity * dt * up + dv)
     feet_shift = velocity * dt - 0.5 * gravity * dt * dt * up + dp
     moved_feet = (feet - feet_shift[:, None, :]) @ turn
-    moved_q = rot.normalized_batch(rot.multiply_batch(q, turn_q))
     out = np.empty_like(sigmas)
-    out[:, THETA] = rot.log_batch(rot.multiply_batch(np.array(rot.conjugate(after.q)), moved_q))
+    out[:, THETA] = (Rotation.from_quat(after.q).inv() * attitude * step).as_rotvec()
     out[:, BIAS] = before.bias + gyro_error - after.bias
     out[:, VEL] = moved_velocity - after.velocity
     out[:, ACCEL_BIAS] = before.accel_bias + accel_error - after.accel_bias
@@ -150,12 +145,12 @@ class UkfEstimator(FusionEstimator):
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         return self._correct(mean_force, variance, gate, self._hx_specific_force)
 
-    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray, variance: float, gate: float) -> np.ndarray:
+    def _correct_feet(self, legs: np.ndarray, measured: np.ndarray) -> np.ndarray:
         """The feet gated one by one on their blocks (h is linear: S_i = P_ii + R), then one update."""
+        variance, gate = self.noise.foot_position, self.foot_gate
         innovation = measured - self.state.feet[legs]
         blocks = [foot(leg) for leg in legs]
-        nis = np.array([y @ inverse3(self.P[b, b] + variance * I3) @ y for y, b in zip(innovation, blocks)])
-        accepted = nis <= gate
+        accepted = np.array([foot_nis(self.P, b.start, variance, y) <= gate for y, b in zip(innovation, blocks)])
         if accepted.any():
             index = np.concatenate([np.arange(b.start, b.stop) for b, ok in zip(blocks, accepted) if ok])
             nominal = self.state.feet[legs[accepted]].ravel()

@@ -30,13 +30,13 @@ class AccelArray(Sensor):
         self.channels = InertialChannels(triads, frame=np.eye(3 * self.members))
         self._faults = FaultInjector(faults, "accel_array", 3, self.channels.full_scale, members=self.members)
 
-
     @classmethod
     def from_config(cls, config, context: SensorContext) -> "AccelArray | None":
         sensors = config.sensors
         if not len(sensors.accel_array.member_positions):
             return None
         return cls(sensors.accel_array, sensors.imu.accel, context.seed, context.faults, context.motion)
+
     def samples_at(self, truth: Truth, t: float) -> list[AccelSample]:
         true_values = self._motion(truth).specific_force_at(self._positions).ravel()
         out, dropped = measure(self.channels, self._faults, t, true_values)

@@ -31,10 +31,10 @@ class Encoders(Sensor):
         self._faults = FaultInjector(faults, "encoder", NUM_JOINTS, np.full(NUM_JOINTS, math.pi))
         self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
-
     @classmethod
     def from_config(cls, config, context: SensorContext) -> "Encoders":
         return cls(config.sensors.encoder, context.seed, context.faults)
+
     def corrupt(self, angles: np.ndarray) -> np.ndarray:
         return angles + self._noise.next() if self._noise else np.array(angles, dtype=float)
 
@@ -52,8 +52,8 @@ class Encoders(Sensor):
 
 
 # Compiled: numpy's five calls on 18 angles cost ~6 us per sample in the run loop, the loop ~1 us.
-# Integer-valued floats throughout until the last product, so the same bits as numpy's
-# (rint, then Python's float modulo, which numba's % follows).
+# Integer-valued floats throughout until the last product: the counts are exact
+# (rint, then a float modulo).
 @njit(cache=True)
 def wrapped_counts(raw: np.ndarray, lsb: float, counts_per_turn: int) -> np.ndarray:
     """Angles quantized to `lsb` and wrapped to [-pi, pi): counts in [-half, half) turns, times lsb."""

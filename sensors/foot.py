@@ -28,10 +28,10 @@ class FootSensors(Sensor):
         self._contact = np.zeros(NUM_LEGS, dtype=bool)
         self._plain = self._noise is not None and not self._faults    # noisy, no fault: one compiled call
 
-
     @classmethod
     def from_config(cls, config, context: SensorContext) -> "FootSensors":
         return cls(config.sensors.foot, context.seed, context.faults)
+
     def corrupt(self, forces: np.ndarray) -> np.ndarray:
         return forces + self._noise.next() if self._noise else np.array(forces, dtype=float)
 

@@ -18,6 +18,14 @@ from sensors.sampling import SampleClock, measure, sensor_seed
 from testbed.model.truth import Truth
 
 
+# The fault-free reading's constants, fields by name (`_imu_reading`).
+IMU_READING = np.dtype([
+    ("position", "f8", 3),      # m, body frame: the accelerometer's point
+    ("gravity", "f8"),          # m/s^2
+    ("lsb", "f8", 6), ("lowest", "f8", 6), ("highest", "f8", 6),     # InertialChannels' digitizing
+])
+
+
 class Imu(Sensor):
     order = 0
 
@@ -32,14 +40,15 @@ class Imu(Sensor):
         self.channels = InertialChannels(triads, frame=block_diag(sensor_from_body, sensor_from_body))
         self._faults = FaultInjector(faults, "imu", 6, self.channels.full_scale)
         self._fault_free = not self._faults
-        # The fault-free reading's digitizing constants in one array: numba unboxes each argument.
-        channels = self.channels
-        self._constants = np.concatenate([[motion.gravity], channels.lsb, channels.lowest, channels.highest])
-
+        self._constants = np.zeros(1, dtype=IMU_READING)
+        constants, channels = self._constants[0], self.channels
+        constants["position"], constants["gravity"] = self._position, motion.gravity
+        constants["lsb"], constants["lowest"], constants["highest"] = channels.lsb, channels.lowest, channels.highest
 
     @classmethod
     def from_config(cls, config, context: SensorContext) -> "Imu":
         return cls(config.sensors.imu, context.seed, context.faults, context.motion)
+
     def body_values(self, motion: BodyMotion) -> np.ndarray:
         """(6,) noise-free specific force at the IMU point and angular velocity, body frame."""
         values = np.empty(6)
@@ -49,10 +58,9 @@ class Imu(Sensor):
 
     def samples_at(self, truth: Truth, t: float) -> list[ImuSample]:
         if self._fault_free:
-            channels = self.channels
             out = _imu_reading(truth.body_rotation, truth.body_linear_acceleration, truth.body_angular_velocity,
-                               truth.body_angular_acceleration, self._position, self._constants, channels.gain,
-                               channels.next_errors())
+                               truth.body_angular_acceleration, self._constants, self.channels.gain,
+                               self.channels.next_errors())
         else:
             out, dropped = measure(self.channels, self._faults, t, self.body_values(self._motion(truth)))
             if dropped is not None and dropped.all():
@@ -70,12 +78,13 @@ class Imu(Sensor):
 # Compiled: the fault-free IMU sample at 1 kHz in one call, through the same compiled steps as the
 # faulted path (true values, errors, digitizing), which numpy spent a dozen small calls on.
 @njit(cache=True)
-def _imu_reading(rotation, acceleration, angular_velocity, angular_acceleration, position, constants, gain, errors):
-    """`constants`: gravity, then the channels' lsb, lowest and highest (6,) each."""
-    gravity, lsb, lowest, highest = constants[0], constants[1:7], constants[7:13], constants[13:19]
-    force, omega, lever = body_motion_arrays(rotation, acceleration, angular_velocity, angular_acceleration, gravity)
+def _imu_reading(rotation, acceleration, angular_velocity, angular_acceleration, constants, gain, errors):
+    """The reading of the IMU whose IMU_READING record is `constants`, through the channels'
+    `gain` and with their additive `errors`."""
+    c = constants[0]
+    force, omega, lever = body_motion_arrays(rotation, acceleration, angular_velocity, angular_acceleration,
+                                             c.gravity)
     values = np.empty(6)
-    # np.dot is BLAS's dgemv, as numpy's `points @ lever_arm.T` in BodyMotion: the same bits.
-    values[:3] = force + np.dot(lever, position)
+    values[:3] = force + lever @ c.position
     values[3:] = omega
-    return digitize_rows(corrupt_values(gain, values, errors).reshape(1, -1), lsb, lowest, highest)[0]
+    return digitize_rows(corrupt_values(gain, values, errors).reshape(1, -1), c.lsb, c.lowest, c.highest)[0]

@@ -1,4 +1,4 @@
-"""Small rotation helpers for the estimators' hot paths (scipy `Rotation` costs ~10 us to build).
+"""Rotations: the one toolkit of quaternion, matrix, skew, exp/log (so3) and angle helpers.
 
 Conventions, used by every estimator:
 - quaternions are Hamilton, scalar last (x, y, z, w) like scipy, and rotate body vectors into the
@@ -10,8 +10,9 @@ Conventions, used by every estimator:
 - attitude errors are local (body-frame) rotation vectors: R_true = R_est Exp(dtheta)
   (Sola 2017, "Quaternion kinematics for the error-state Kalman filter", section 4.1 and 5).
 
-The single-rotation helpers are `register_jitable`: plain Python when called from Python, and
-compiled into the filters' numba kernels that call them (one source for both).
+The helpers are `register_jitable`: plain Python when called from Python, and compiled into the
+numba kernels that call them (one source for both). Arrays of rotations (the UKF's sigma points,
+scoring) go through scipy's `Rotation`, where the cost of building one does not matter.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ def multiply(p: Quaternion, q: Quaternion) -> Quaternion:
             pw * qw - px * qx - py * qy - pz * qz)
 
 
+@register_jitable
 def conjugate(q: Quaternion) -> Quaternion:
     return (-q[0], -q[1], -q[2], q[3])
 
@@ -83,11 +85,70 @@ def rotate_by_vector(q: Quaternion, rx: float, ry: float, rz: float) -> Quaterni
 def to_matrix(q: Quaternion) -> np.ndarray:
     """3x3 rotation matrix of the quaternion (Sola 2017, eq. 115)."""
     x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    out = np.empty((3, 3))     # filled entry by entry: compiled, np.array of nested lists is slow
+    out[0, 0], out[0, 1], out[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return out
+
+
+@register_jitable
+def skew(v) -> np.ndarray:
+    """[v]x, the cross-product matrix of a 3-sequence: skew(a) @ b == cross(a, b)."""
+    out = np.zeros((3, 3))     # filled entry by entry, as to_matrix
+    out[0, 1], out[0, 2] = -v[2], v[1]
+    out[1, 0], out[1, 2] = v[2], -v[0]
+    out[2, 0], out[2, 1] = -v[1], v[0]
+    return out
+
+
+@register_jitable
+def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b for 3x3 matrices, as a plain loop: in compiled code `@` calls BLAS, whose call costs
+    more than these 27 products."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+@register_jitable
+def matvec3(a: np.ndarray, v) -> np.ndarray:
+    """a @ v for a 3x3 matrix and a 3-vector, as a plain loop (see matmul3)."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = a[i, 0] * v[0] + a[i, 1] * v[1] + a[i, 2] * v[2]
+    return out
+
+
+@register_jitable
+def quaternion_from_matrix(m: np.ndarray) -> Quaternion:
+    """The quaternion of a rotation matrix (Shepperd's method: the largest of w, x, y, z first,
+    for accuracy), with w >= 0."""
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0.0:
+        t = 0.5 / math.sqrt(trace + 1.0)
+        return normalized(((m[2, 1] - m[1, 2]) * t, (m[0, 2] - m[2, 0]) * t, (m[1, 0] - m[0, 1]) * t, 0.25 / t))
+    i = 0
+    if m[1, 1] > m[0, 0]:
+        i = 1
+    if m[2, 2] > m[i, i]:
+        i = 2
+    j, k = (i + 1) % 3, (i + 2) % 3
+    t = math.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
+    v = [0.0, 0.0, 0.0]
+    v[i] = 0.5 * t
+    t = 0.5 / t
+    v[j] = (m[j, i] + m[i, j]) * t
+    v[k] = (m[k, i] + m[i, k]) * t
+    return normalized((v[0], v[1], v[2], (m[k, j] - m[j, k]) * t))
+
+
+@register_jitable
+def wrap_angle(angle):
+    """The angle (rad, a float or an array) wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @register_jitable
@@ -97,6 +158,7 @@ def up_in_body(q: Quaternion) -> tuple[float, float, float]:
     return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
+@register_jitable
 def euler_from_quaternion(q: Quaternion) -> tuple[float, float, float]:
     """(roll, pitch, yaw) of R = Rz(yaw) Ry(pitch) Rx(roll)."""
     x, y, z, w = q
@@ -112,6 +174,7 @@ def yaw_of(q: Quaternion) -> float:
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+@register_jitable
 def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> Quaternion:
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
     cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
@@ -135,54 +198,16 @@ def euler_jacobian(roll: float, pitch: float) -> np.ndarray:
     if abs(cp) < 1e-6:
         cp = math.copysign(1e-6, cp)
     tp = math.sin(pitch) / cp
-    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+    out = np.empty((3, 3))     # filled entry by entry, as to_matrix
+    out[0, 0], out[0, 1], out[0, 2] = 1.0, sr * tp, cr * tp
+    out[1, 0], out[1, 1], out[1, 2] = 0.0, cr, -sr
+    out[2, 0], out[2, 1], out[2, 2] = 0.0, sr / cp, cr / cp
+    return out
 
 
+@register_jitable
 def tilt_from_specific_force(fx: float, fy: float, fz: float) -> tuple[float, float]:
     """(roll, pitch) that align the body's up direction with a specific force measured at rest."""
     return math.atan2(fy, fz), math.atan2(-fx, math.sqrt(fy * fy + fz * fz))
 
 
-# -- the same operations on arrays of n quaternions / rotation vectors (sigma points) ----------
-
-def exp_batch(rotvecs: np.ndarray) -> np.ndarray:
-    """(n, 4) quaternions of (n, 3) rotation vectors."""
-    angle = np.linalg.norm(rotvecs, axis=1)
-    small = angle < 1e-8
-    safe = np.where(small, 1.0, angle)
-    scale = np.where(small, 0.5 - angle**2 / 48.0, np.sin(0.5 * safe) / safe)
-    return np.column_stack([scale[:, None] * rotvecs, np.cos(0.5 * angle)])
-
-
-def multiply_batch(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Row-wise Hamilton products; either argument may be a single quaternion."""
-    px, py, pz, pw = np.moveaxis(np.atleast_2d(p), 1, 0)
-    qx, qy, qz, qw = np.moveaxis(np.atleast_2d(q), 1, 0)
-    return np.column_stack([pw * qx + px * qw + py * qz - pz * qy,
-                            pw * qy - px * qz + py * qw + pz * qx,
-                            pw * qz + px * qy - py * qx + pz * qw,
-                            pw * qw - px * qx - py * qy - pz * qz])
-
-
-def normalized_batch(q: np.ndarray) -> np.ndarray:
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return np.where(q[:, 3:4] < 0, -q, q)
-
-
-def log_batch(q: np.ndarray) -> np.ndarray:
-    """(n, 3) rotation vectors of (n, 4) quaternions, angles in [0, pi]."""
-    q = np.where(q[:, 3:4] < 0, -q, q)
-    vector_norm = np.linalg.norm(q[:, :3], axis=1)
-    small = vector_norm < 1e-12
-    scale = np.where(small, 2.0, 2.0 * np.arctan2(vector_norm, q[:, 3]) / np.where(small, 1.0, vector_norm))
-    return scale[:, None] * q[:, :3]
-
-
-def to_matrix_batch(q: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotation matrices."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)

@@ -2,9 +2,9 @@ import math
 
 import numpy as np
 import pytest
+from numba import njit
 from scipy.spatial.transform import Rotation
 
-from estimators import linalg
 from testbed.model import spatial as rot
 
 RNG = np.random.default_rng(4)
@@ -36,15 +36,41 @@ def test_exp_log_and_local_perturbation():
     assert np.allclose(rot.to_matrix(turned), expected.as_matrix(), atol=1e-12)
 
 
-def test_batch_versions_match_scalar_ones():
-    vectors = RNG.uniform(-1.5, 1.5, (10, 3))
-    vectors[0] = 0.0
-    quats = rot.exp_batch(vectors)
-    assert np.allclose(quats, [rot.exp(*v) for v in vectors], atol=1e-14)
-    others = np.array([rot.exp(*v) for v in RNG.normal(0.0, 1.0, (10, 3))])
-    assert np.allclose(rot.multiply_batch(quats, others), [rot.multiply(tuple(p), tuple(q)) for p, q in zip(quats, others)])
-    assert np.allclose(rot.log_batch(quats), vectors, atol=1e-12)
-    assert np.allclose(rot.to_matrix_batch(quats), [rot.to_matrix(tuple(q)) for q in quats])
+def test_skew_is_the_cross_product_matrix():
+    a, b = RNG.normal(size=3), RNG.normal(size=3)
+    np.testing.assert_allclose(rot.skew(a) @ b, np.cross(a, b), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(rot.skew(tuple(a)), rot.skew(a), rtol=0, atol=0)
+
+
+def test_quaternion_from_matrix_inverts_to_matrix():
+    for r in ROTATIONS:
+        q = rot.quaternion_from_matrix(r.as_matrix())
+        assert q[3] >= 0
+        np.testing.assert_allclose(q, r.as_quat(canonical=True), rtol=0, atol=1e-12)
+    half_turn = Rotation.from_rotvec([0.0, np.pi, 0.0]).as_matrix()      # trace -1: the other branch
+    np.testing.assert_allclose(rot.to_matrix(rot.quaternion_from_matrix(half_turn)), half_turn, atol=1e-12)
+
+
+def test_wrap_angle_to_minus_pi_pi():
+    angles = np.array([-7.0, -math.pi, -1.0, 0.0, 1.0, math.pi, 7.0])
+    wrapped = rot.wrap_angle(angles)
+    assert np.all((wrapped >= -math.pi) & (wrapped < math.pi))
+    np.testing.assert_allclose(np.cos(wrapped), np.cos(angles), atol=1e-12)
+    np.testing.assert_allclose(np.sin(wrapped), np.sin(angles), atol=1e-12)
+    assert rot.wrap_angle(7.0) == pytest.approx(7.0 - 2 * math.pi)
+
+
+def test_compiled_helpers_equal_the_python_ones():
+    """The helpers run as Python and compiled into kernels: the same numbers either way."""
+    compiled = njit(lambda q, v: (rot.to_matrix(q), rot.log(q), rot.euler_from_quaternion(q),
+                                  rot.rotate_by_vector(q, v[0], v[1], v[2]), rot.skew(v),
+                                  rot.quaternion_from_matrix(rot.to_matrix(q))))
+    for r in ROTATIONS[:10]:
+        q, v = tuple(r.as_quat()), RNG.normal(size=3)
+        python = (rot.to_matrix(q), rot.log(q), rot.euler_from_quaternion(q), rot.rotate_by_vector(q, *v),
+                  rot.skew(v), rot.quaternion_from_matrix(rot.to_matrix(q)))
+        for mine, theirs in zip(compiled(q, v), python):
+            np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=1e-15)
 
 
 def test_euler_jacobian_matches_finite_differences():
@@ -69,17 +95,6 @@ def test_tilt_from_specific_force_at_rest():
         yaw, pitch, roll = r.as_euler("ZYX")
         force = 9.81 * r.as_matrix()[2]
         assert np.allclose(rot.tilt_from_specific_force(*force), (roll, pitch), atol=1e-9)
-
-
-def test_small_linear_algebra():
-    matrix = RNG.normal(size=(3, 3)) + 3 * np.eye(3)
-    assert np.allclose(linalg.inverse3(matrix), np.linalg.inv(matrix))
-    a, b = RNG.normal(size=3), RNG.normal(size=3)
-    assert np.allclose(linalg.cross(a, b), np.cross(a, b))
-    assert np.allclose(linalg.skew(a) @ b, np.cross(a, b))
-    vectors = RNG.normal(size=(6, 3))
-    assert np.allclose(linalg.stacked_skew(vectors), np.vstack([linalg.skew(v) for v in vectors]))
-    assert linalg.stacked_skew(vectors[:2]).shape == (6, 3)
 
 
 @pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (math.nan, 0.0, 0.0, 1.0)])

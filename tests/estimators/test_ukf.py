@@ -18,7 +18,7 @@ def random_interval(seed: int) -> tuple[NominalState, Preintegration]:
     rng = np.random.default_rng(seed)
     state = NominalState(rot.quaternion_from_euler(0.1, -0.2, 0.3), rng.normal(0, 0.01, 3), rng.normal(0, 0.1, 3),
                          rng.normal(0, 0.05, 3), rng.normal(0, 0.1, (6, 3)))
-    pre = Preintegration()
+    pre = Preintegration(GRAVITY)
     pre.start(state.q, state.bias, state.accel_bias)
     for _ in range(5):
         pre.add(rng.normal(0, 0.5, 3), np.array([0.0, 0.0, GRAVITY]) + rng.normal(0, 3, 3), 1e-3)
@@ -44,7 +44,7 @@ def test_ekf_transition_is_the_jacobian_of_the_process_model():
     state, pre = random_interval(3)
     after, _ = apply_preintegration(state, pre, GRAVITY)
     velocity, feet, F = state.velocity.copy(), state.feet.copy(), np.eye(ERROR_DIM)
-    q = predict(pre.buffer, velocity, feet, np.eye(ERROR_DIM), F, np.zeros(ERROR_DIM), np.zeros(ERROR_DIM), GRAVITY)
+    q = predict(pre.record, velocity, feet, np.eye(ERROR_DIM), F, np.zeros(ERROR_DIM), np.zeros(ERROR_DIM))
     assert np.allclose(q, after.q, atol=1e-15) and np.allclose(velocity, after.velocity, atol=1e-15)
     assert np.allclose(feet, after.feet, atol=1e-15)
     numeric = np.zeros_like(F)

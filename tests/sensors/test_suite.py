@@ -81,8 +81,8 @@ def test_still_imu_record_is_the_vectorised_path_of_the_per_step_accel_gyro_samp
     still = truth(0.0)
     _, accel, gyro = Imu(config.imu, 5, (), MotionCache(GRAVITY)).record(still, 3000)
     samples = of_type(run(config, [truth(k / 1000.0) for k in range(3000)], seed=5), ImuSample)
-    np.testing.assert_array_equal(accel, [s.accel for s in samples])
-    np.testing.assert_array_equal(gyro, [s.gyro for s in samples])
+    np.testing.assert_allclose(accel, [s.accel for s in samples], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(gyro, [s.gyro for s in samples], rtol=1e-12, atol=1e-15)
 
 
 def test_suite_from_the_run_config_uses_its_gravity_and_seed():
