@@ -6,8 +6,10 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
+from testbed.model.errors import PluginError
 from testbed.runtime import config
 from testbed.runtime.runner import build_simulation
+from testbed.world.contact import CONTACT_MODELS, CompliantContact, DartContact
 
 CONTACTS = ["compliant", "dart"]
 
@@ -103,10 +105,10 @@ def test_same_seed_same_run(contact):
     assert not np.array_equal(a[1], c[1])
 
 
-def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypatch):
+def test_ctrl_c_inside_the_compiled_state_read_out_stops_the_run_cleanly(monkeypatch):
     """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
     comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted. (The
-    state read-out computes the contact: its first call is at t = 0, its 50th after step 49.)"""
+    state read-out's first call is at t = 0, its 50th after step 49.)"""
     from testbed.world import simulation
     from testbed.runtime.recording import NullRecorder
     from testbed.runtime.runner import run
@@ -141,3 +143,25 @@ def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
     monkeypatch.setattr(simulation, "_read_out", broken)
     with pytest.raises(SystemError, match="something else"):
         run(config.load(overrides={"run": {"duration": 0.05}}))
+
+
+class SlipperyContact(CompliantContact):
+    """A contact model from outside the registry's built-ins: the hard finger without friction."""
+
+    def __init__(self, config, terrain):
+        super().__init__(config.replace(contact={"friction": 0.0}), terrain)
+
+
+def test_contact_models_come_from_the_registry():
+    assert CONTACT_MODELS.names() == ("compliant", "dart")
+    assert CONTACT_MODELS.resolve("compliant") is CompliantContact and CONTACT_MODELS.resolve("dart") is DartContact
+    with pytest.raises(PluginError, match="unknown contact model 'glue'"):
+        CONTACT_MODELS.check_spec("glue")
+    spec = f"{__name__}:SlipperyContact"
+    cfg = config.load(overrides={"run": {"terrain": "slope", "contact": spec}})
+    sim = build_simulation(cfg)
+    assert type(sim.contact) is SlipperyContact
+    start = sim.body_transform()[0, 3]
+    for _ in range(500):
+        sim.step(sim.standing_targets)
+    assert sim.body_transform()[0, 3] - start < -0.01            # downhill, with nothing to hold it
