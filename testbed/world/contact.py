@@ -32,6 +32,7 @@ from numba import njit
 from testbed.model.kinematics import WorldFeet
 from testbed.model.registry import Registry
 from testbed.world.config import ContactConfig
+from testbed.world.records import one_record
 from testbed.world.terrain import Terrain, candidates_by_rule, closest_distance, sphere_contact_arrays
 
 LEGS = 6
@@ -97,10 +98,9 @@ HARD_FINGER = np.dtype([("radius", np.float64), ("stiffness", np.float64), ("exp
 
 def hard_finger_record(config: ContactConfig, foot_radius: float) -> np.ndarray:
     """The law's parameters as a one-element HARD_FINGER array (the form the kernel takes them in)."""
-    law = np.zeros(1, HARD_FINGER)
-    law[0] = (foot_radius, config.stiffness, config.exponent, config.damping, config.tangential_stiffness,
-              config.tangential_damping, config.friction)
-    return law
+    return one_record(HARD_FINGER, radius=foot_radius, stiffness=config.stiffness, exponent=config.exponent,
+                      damping=config.damping, tangential_stiffness=config.tangential_stiffness,
+                      tangential_damping=config.tangential_damping, friction=config.friction)
 
 
 def hard_finger(feet: WorldFeet, depth: np.ndarray, normals: np.ndarray, anchors: np.ndarray,
@@ -242,10 +242,10 @@ class CompliantContact(ContactModel):
     def __init__(self, config, terrain: Terrain):
         super().__init__(config, terrain)
         self.law = hard_finger_record(config.contact, config.robot.foot_radius)
-        self.memory = np.zeros(1, HARD_FINGER_MEMORY)
+        self.memory = one_record(HARD_FINGER_MEMORY, anchors=np.nan, applied_forces=0.0, applied_offsets=0.0)
         self.anchors = self.memory["anchors"][0]       # views: the kernel updates them in place
-        self.anchors[:] = np.nan
-        self._applied_forces, self._applied_offsets = self.memory["applied_forces"][0], self.memory["applied_offsets"][0]
+        self._applied_forces = self.memory["applied_forces"][0]
+        self._applied_offsets = self.memory["applied_offsets"][0]
         self._boxes = terrain.boxes.records
         self._rule = terrain.candidate_rule()
         self._body_corners = body_corners(config.robot.body_size)
@@ -457,6 +457,7 @@ class DartContact(ContactModel):
         if not over.any():
             return forces
         self.cone_corrections += int(over.sum())
-        self.worst_cone_ratio = max(self.worst_cone_ratio, float(np.max(magnitude[over] / np.maximum(limit[over], 1e-12))))
+        ratio = float(np.max(magnitude[over] / np.maximum(limit[over], 1e-12)))
+        self.worst_cone_ratio = max(self.worst_cone_ratio, ratio)
         scale = np.where(over, limit / np.maximum(magnitude, 1e-12), 1.0)
         return normal_forces[:, None] * normals + tangential * scale[:, None]

@@ -1,4 +1,4 @@
-"""The DART world: robot from its URDF, terrain from boxes, one of two contact models, servos.
+"""The DART world: robot from its URDF, terrain from boxes, a contact model, servos.
 
 `Simulation.step(joint_targets)` advances one physics step; `Simulation.truth()` reads the ground
 truth. The loop that calls them (sensors, estimator, controller) lives in `testbed.runtime.runner`.
@@ -17,9 +17,15 @@ from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nomina
 from testbed.model.robot import LEG_NAMES, build_urdf, foot_offset, joint_names
 from testbed.model.truth import Truth
 from testbed.world.contact import FootContacts, make_contact_model
+from testbed.world.records import one_record
 from testbed.world.terrain import Terrain
 
 INITIAL_CLEARANCE = 0.001   # m, feet start this far above the ground and settle onto it
+# DART's generalized coordinates: the root FreeJoint's six (rotation vector, then translation; its
+# rates: angular, then linear velocity), then the joints' eighteen. DART's spatial velocities (twists)
+# hold the angular part, then the linear one.
+ROOT_ROTATION, ROOT_TRANSLATION, ROOT_DOFS = slice(0, 3), slice(3, 6), 6
+ANGULAR, LINEAR = slice(0, 3), slice(3, 6)
 FALL_TILT = np.radians(45.0)
 
 
@@ -72,12 +78,11 @@ class Simulation:
         self.mass = self.robot.getMass()
         self._check_root_joint()
         self._setup_servos()
-        self.contact_model = config.run.contact
         self.contact = make_contact_model(config.run.contact, config, terrain)
         self._add_robot_to_world()
         self.standing_targets = self._place_robot()
         self._commands = np.zeros(self.robot.getNumDofs())
-        self._joint_commands = self._commands[6:]
+        self._joint_commands = self._commands[ROOT_DOFS:]
         self._servo_gain = float(config.robot.servo_gain)
         self._servo_limit = float(config.robot.servo_speed_limit)
         # The binding calls of every step, looked up once.
@@ -141,8 +146,8 @@ class Simulation:
         feet[:, 2] = world_z - body_z
         q = inverse_kinematics_all(self.geometry, feet)
         positions = np.zeros(self.robot.getNumDofs())
-        positions[3:6] = [0.0, 0.0, body_z]
-        positions[6:] = q
+        positions[ROOT_TRANSLATION] = [0.0, 0.0, body_z]
+        positions[ROOT_DOFS:] = q
         self.robot.setPositions(positions)
         self.robot.setVelocities(np.zeros_like(positions))
         return q
@@ -163,7 +168,7 @@ class Simulation:
         return self._time
 
     def joint_positions(self) -> np.ndarray:
-        return self.robot.getPositions()[6:]
+        return self.robot.getPositions()[ROOT_DOFS:]
 
     def step(self, joint_targets: np.ndarray) -> None:
         """One physics step with the servos driving towards `joint_targets` (18,) rad."""
@@ -190,7 +195,7 @@ class Simulation:
         # returned array for more than a view costs.
         self._truth = Truth(self._time, state["position"], state["rotation"], state["linear_velocity"],
                             state["angular_velocity"], state["linear_acceleration"], state["angular_acceleration"],
-                            positions[6:], velocities[6:], state["foot_centers"], contacts.forces,
+                            positions[ROOT_DOFS:], velocities[ROOT_DOFS:], state["foot_centers"], contacts.forces,
                             contacts.normal_forces, contacts.in_contact, com)
         self._quaternion = state["quaternion"]
 
@@ -248,10 +253,8 @@ READ_OUT = np.dtype([("dt", np.float64), ("femur", np.float64), ("tibia", np.flo
 
 def read_out_record(dt: float, geometry: LegGeometry) -> np.ndarray:
     """A one-element READ_OUT array for a body at rest."""
-    record = np.zeros(1, READ_OUT)
-    record[0] = (dt, geometry.femur, geometry.tibia, geometry.base_angle, geometry.base_distance, np.zeros(3),
-                 np.zeros(3))
-    return record
+    return one_record(READ_OUT, dt=dt, femur=geometry.femur, tibia=geometry.tibia, base_angle=geometry.base_angle,
+                      base_distance=geometry.base_distance, previous_linear_velocity=0.0, previous_angular_velocity=0.0)
 
 
 @njit(cache=True)
@@ -266,9 +269,10 @@ def _read_out(positions, velocities, read_out):
     transform = free_joint_transform(positions)
     rotation = transform[:3, :3]
     twist = free_joint_twist(rotation, velocities)
+    body_angular, body_linear = twist[ANGULAR], twist[LINEAR]
     for i in range(3):
-        angular = rotation[i, 0] * twist[0] + rotation[i, 1] * twist[1] + rotation[i, 2] * twist[2]
-        linear = rotation[i, 0] * twist[3] + rotation[i, 1] * twist[4] + rotation[i, 2] * twist[5]
+        angular = rotation[i, 0] * body_angular[0] + rotation[i, 1] * body_angular[1] + rotation[i, 2] * body_angular[2]
+        linear = rotation[i, 0] * body_linear[0] + rotation[i, 1] * body_linear[1] + rotation[i, 2] * body_linear[2]
         # Finite differences of the body velocity over the step: DART's own accelerations miss the
         # servo and contact constraint impulses, which are part of what an accelerometer feels.
         out.linear_acceleration[i] = (linear - settings.previous_linear_velocity[i]) / settings.dt
@@ -282,8 +286,8 @@ def _read_out(positions, velocities, read_out):
     if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
         return state, False, rotation[2, 2]
     centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
-        rotation, out.position, out.angular_velocity, out.linear_velocity, positions[6:], velocities[6:],
-        settings.base_angle, settings.base_distance, settings.femur, settings.tibia)
+        rotation, out.position, out.angular_velocity, out.linear_velocity, positions[ROOT_DOFS:],
+        velocities[ROOT_DOFS:], settings.base_angle, settings.base_distance, settings.femur, settings.tibia)
     out.foot_centers[:] = centers
     out.foot_velocities[:] = feet_velocities
     out.tibia_spins[:] = spins
@@ -301,10 +305,11 @@ EXP_MAP_SMALL_ANGLE = 1e-3      # rad: DART's expMapRot switches to its second-o
 
 @njit(cache=True)
 def free_joint_transform(positions):
-    """(4, 4) world_from_body of positions[0:6] = (rotation vector, translation): DART's
+    """(4, 4) world_from_body of the root FreeJoint's coordinates (rotation vector, translation): DART's
     math::expMapRot, R = I + sin(t)/t [q]x + (1 - cos(t))/t^2 [q]x^2 (I + [q]x + [q]x^2 / 2 below the
     small angle), in Eigen's order of operations; the translation gains DART's + 0.0 (-0.0 becomes 0.0)."""
-    q0, q1, q2 = positions[0], positions[1], positions[2]
+    rotation_vector, translation = positions[ROOT_ROTATION], positions[ROOT_TRANSLATION]
+    q0, q1, q2 = rotation_vector[0], rotation_vector[1], rotation_vector[2]
     theta = math.sqrt((q0 * q0 + q1 * q1) + q2 * q2)
     if theta < EXP_MAP_SMALL_ANGLE:
         first, second = 1.0, 0.5
@@ -316,20 +321,20 @@ def free_joint_transform(positions):
         for j in range(3):
             squared = (hat[i, 0] * hat[0, j] + hat[i, 1] * hat[1, j]) + hat[i, 2] * hat[2, j]
             transform[i, j] = ((1.0 if i == j else 0.0) + first * hat[i, j]) + second * squared
-        transform[i, 3] = positions[3 + i] + 0.0
+        transform[i, 3] = translation[i] + 0.0
     transform[3, 3] = 1.0
     return transform
 
 
 @njit(cache=True)
 def free_joint_twist(rotation, velocities):
-    """(6,) body-frame spatial velocity (angular, linear) of velocities[0:6] (world-frame rates):
+    """(6,) body-frame spatial velocity (angular, linear) of the root FreeJoint's rates (world frame):
     R^T w and R^T v, summed onto 0.0 as DART accumulates them onto a zero twist (-0.0 becomes 0.0)."""
     twist = np.empty(6)
-    for i in range(3):
-        for start in (0, 3):
-            twist[start + i] = 0.0 + ((rotation[0, i] * velocities[start] + rotation[1, i] * velocities[start + 1])
-                                      + rotation[2, i] * velocities[start + 2])
+    for part in (ANGULAR, LINEAR):
+        rate, body = velocities[part], twist[part]
+        for i in range(3):
+            body[i] = 0.0 + ((rotation[0, i] * rate[0] + rotation[1, i] * rate[1]) + rotation[2, i] * rate[2])
     return twist
 
 

@@ -13,6 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
+from testbed.world.records import one_record
 from testbed.world.terrain import candidates_by_rule, closest_distance
 
 LEGS = 6
@@ -25,9 +26,8 @@ SUPPORT = np.dtype([("debounce", np.float64), ("foot_radius", np.float64), ("gro
 
 def support_record(debounce: float, foot_radius: float, ground_tolerance: float) -> np.ndarray:
     """A one-element SUPPORT array with no touch yet (last_touch = -inf)."""
-    support = np.zeros(1, SUPPORT)
-    support[0] = (debounce, foot_radius, ground_tolerance, np.full(LEGS, -np.inf))
-    return support
+    return one_record(SUPPORT, debounce=debounce, foot_radius=foot_radius, ground_tolerance=ground_tolerance,
+                      last_touch=-np.inf)
 
 
 # ---------------------------------------------------------------- the laws

@@ -25,6 +25,7 @@ from numba import njit
 from testbed.world.config import TerrainConfig
 from testbed.model.errors import ConfigError, PluginError
 from testbed.model.registry import Registry
+from testbed.world.records import one_record
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
 TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
@@ -38,12 +39,10 @@ CANDIDATE_RULE = np.dtype([("kind", np.int64), ("boxes", np.int64), ("x0", np.fl
                            ("cell", np.float64), ("nx", np.int64), ("ny", np.int64)])
 
 
-def candidate_rule(kind: int, boxes: int = 0, x0: float = 0.0, y0: float = 0.0, cell: float = 1.0, nx: int = 1,
+def candidate_rule(kind: int, *, boxes: int = 0, x0: float = 0.0, y0: float = 0.0, cell: float = 1.0, nx: int = 1,
                    ny: int = 1) -> np.ndarray:
     """A one-element CANDIDATE_RULE array (the form compiled code takes it in)."""
-    rule = np.zeros(1, CANDIDATE_RULE)
-    rule[0] = (kind, boxes, x0, y0, cell, nx, ny)
-    return rule
+    return one_record(CANDIDATE_RULE, kind=kind, boxes=boxes, x0=x0, y0=y0, cell=cell, nx=nx, ny=ny)
 
 
 @dataclass(frozen=True)
@@ -60,7 +59,8 @@ class Boxes:
     def records(self) -> np.ndarray:
         """The boxes as an (N,) structured array of BOX records, the form kernels take them in."""
         records = np.zeros(len(self), BOX)
-        records["center"], records["half_extents"], records["rotation"] = self.centers, self.half_extents, self.rotations
+        records["center"], records["half_extents"] = self.centers, self.half_extents
+        records["rotation"] = self.rotations
         return records
 
 
