@@ -27,7 +27,8 @@ from testbed.model.errors import PluginError, PluginFailure, SimulationDiverged
 from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
-from testbed.world.stability import stance_support, stance_support_on_terrain, support_record
+from testbed.world.records import raw
+from testbed.world.stability import stance_support, stance_support_on_terrain, support_record, support_view
 from testbed.world.terrain import TERRAIN_STREAM, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
@@ -60,10 +61,10 @@ class SupportTracker:
         self.terrain = terrain
         self.foot_radius = foot_radius
         self._support = support_record(CONTACT_DEBOUNCE, foot_radius, GROUND_TOLERANCE)
-        self.last_touch = self._support["last_touch"][0]        # a view: the kernels update it
+        self.last_touch = support_view(self._support)["last_touch"]     # a view: the kernels update it
         self._not_resting = np.zeros(6, dtype=bool)
-        self._boxes = terrain.boxes.records
-        self._rule = terrain.candidate_rule()
+        rule = terrain.candidate_rule()
+        self._boxes, self._rule = raw(terrain.boxes.records), None if rule is None else raw(rule)
 
     def polygon_and_margin(self, truth, swinging: np.ndarray) -> tuple[np.ndarray, float]:
         """The support polygon and the centre of mass's stability margin in it: one compiled call

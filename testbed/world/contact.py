@@ -18,7 +18,8 @@ spring holds it exactly and only the force cap mu * F_n decides when the foot sl
 `dart` -- DART's own rigid contact: its collision detection and boxed LCP solver.
 
 The hard-finger law is written once in numpy (`hard_finger`); the per-step model runs the compiled
-kernel beside it (`hard_finger_into`), which takes its parameters as a `HARD_FINGER` record.
+kernel beside it (`hard_finger_into`) inside the state read-out's call, with its parameters in a
+`COMPLIANT` record.
 """
 
 from __future__ import annotations
@@ -32,8 +33,9 @@ from numba import njit
 from testbed.model.kinematics import WorldFeet
 from testbed.model.registry import Registry
 from testbed.world.config import ContactConfig
-from testbed.world.records import one_record
-from testbed.world.terrain import Terrain, candidates_by_rule, closest_distance, sphere_contact_arrays
+from testbed.world.records import one_record, raw, the_record
+from testbed.world.state import READ_OUT, STATE, read_out, read_out_into
+from testbed.world.terrain import BOX, CANDIDATE_RULE, Terrain, candidates_by_rule, closest_distance, sphere_contact_arrays
 
 LEGS = 6
 
@@ -54,8 +56,8 @@ class FootContacts(NamedTuple):
 class ContactModel:
     """Base class of every contact model. Built by `from_config(config, terrain)`; the simulation
     then calls `attach(simulation)` once, before the robot joins DART's world, and per physics step
-    `apply()` before DART's step and `update(state)` after it (`state`: the simulation's read-out,
-    `Simulation.state()`), which answers the contacts that acted during that step."""
+    `apply()` before DART's step, `read_state(...)` after it for the state read-out (a STATE record,
+    `Simulation.state()`), and `update(state)`, which answers the contacts that acted during that step."""
 
     name = "contact"
     dart_collisions = False         # whether DART must detect the robot's collisions itself
@@ -75,6 +77,12 @@ class ContactModel:
     def apply(self) -> None:
         """Act on DART's world before its step."""
 
+    def read_state(self, positions: np.ndarray, velocities: np.ndarray, read_out_raw: np.ndarray
+                   ) -> tuple[np.ndarray, bool, float]:
+        """The simulation's state read-out (`state.read_out`). A model whose forces follow from the
+        state may compute them in the same compiled call, into the STATE record's contact fields."""
+        return read_out(positions, velocities, read_out_raw)
+
     def update(self, state: np.ndarray) -> FootContacts:
         """The contacts that acted during the step just taken."""
         raise NotImplementedError(f"{type(self).__name__} must implement update(state)")
@@ -91,18 +99,6 @@ def make_contact_model(spec: str, config, terrain: Terrain) -> ContactModel:
 
 
 # ---------------------------------------------------------------- the hard-finger law
-HARD_FINGER = np.dtype([("radius", np.float64), ("stiffness", np.float64), ("exponent", np.float64),
-                        ("damping", np.float64), ("tangential_stiffness", np.float64),
-                        ("tangential_damping", np.float64), ("friction", np.float64)])
-
-
-def hard_finger_record(config: ContactConfig, foot_radius: float) -> np.ndarray:
-    """The law's parameters as a one-element HARD_FINGER array (the form the kernel takes them in)."""
-    return one_record(HARD_FINGER, radius=foot_radius, stiffness=config.stiffness, exponent=config.exponent,
-                      damping=config.damping, tangential_stiffness=config.tangential_stiffness,
-                      tangential_damping=config.tangential_damping, friction=config.friction)
-
-
 def hard_finger(feet: WorldFeet, depth: np.ndarray, normals: np.ndarray, anchors: np.ndarray,
                 config: ContactConfig, foot_radius: float) -> tuple[FootContacts, np.ndarray]:
     """The contact forces on feet moving as `feet`, indented `depth` (N,) m into the terrain along
@@ -147,7 +143,7 @@ class ContactArrays(NamedTuple):
 @njit(cache=True)
 def hard_finger_into(feet, law, boxes, candidates, anchors, out):
     """`hard_finger` on the terrain's `boxes` (BOX records; each foot's `candidates` boxes), compiled:
-    `feet` a WorldFeet, `law` a HARD_FINGER record, `out` a ContactArrays (normals zero where a foot
+    `feet` a WorldFeet, `law` a COMPLIANT record, `out` a ContactArrays (normals zero where a foot
     does not touch); updates `anchors` in place. Returns the touching feet as bits (leg i: 1 << i)."""
     radius = law.radius
     depth, normals = sphere_contact_arrays(feet.centers, radius, boxes, candidates)
@@ -210,13 +206,21 @@ def _points_in_tibias(feet, points, local):
 
 
 # ---------------------------------------------------------------- the compliant model, per step
-# What the compliant model computes each step: FootContacts' arrays (new at each step: the truth
-# and the recorder keep them) and, kept between steps, the forces it applies to the tibias at the
-# points in their frames and the sticking anchors.
-CONTACT_STEP = np.dtype([("forces", np.float64, (LEGS, 3)), ("normal_forces", np.float64, (LEGS,)),
-                         ("normals", np.float64, (LEGS, 3)), ("points", np.float64, (LEGS, 3))])
-HARD_FINGER_MEMORY = np.dtype([("anchors", np.float64, (LEGS, 3)), ("applied_forces", np.float64, (LEGS, 3)),
-                               ("applied_offsets", np.float64, (LEGS, 3))])
+# The compliant model's parameters (the hard-finger law's) and what it keeps between steps: the
+# sticking anchors, and the forces it applies to the tibias at the points in their frames.
+COMPLIANT = np.dtype([("radius", np.float64), ("stiffness", np.float64), ("exponent", np.float64),
+                      ("damping", np.float64), ("tangential_stiffness", np.float64),
+                      ("tangential_damping", np.float64), ("friction", np.float64),
+                      ("anchors", np.float64, (LEGS, 3)), ("applied_forces", np.float64, (LEGS, 3)),
+                      ("applied_offsets", np.float64, (LEGS, 3))])
+
+
+def compliant_record(config: ContactConfig, foot_radius: float) -> np.ndarray:
+    """A one-element COMPLIANT array with no anchor and no force yet."""
+    return one_record(COMPLIANT, radius=foot_radius, stiffness=config.stiffness, exponent=config.exponent,
+                      damping=config.damping, tangential_stiffness=config.tangential_stiffness,
+                      tangential_damping=config.tangential_damping, friction=config.friction, anchors=np.nan,
+                      applied_forces=0.0, applied_offsets=0.0)
 
 
 def _contact_flags() -> tuple[np.ndarray, ...]:
@@ -241,13 +245,12 @@ class CompliantContact(ContactModel):
 
     def __init__(self, config, terrain: Terrain):
         super().__init__(config, terrain)
-        self.law = hard_finger_record(config.contact, config.robot.foot_radius)
-        self.memory = one_record(HARD_FINGER_MEMORY, anchors=np.nan, applied_forces=0.0, applied_offsets=0.0)
-        self.anchors = self.memory["anchors"][0]       # views: the kernel updates them in place
-        self._applied_forces = self.memory["applied_forces"][0]
-        self._applied_offsets = self.memory["applied_offsets"][0]
-        self._boxes = terrain.boxes.records
-        self._rule = terrain.candidate_rule()
+        record = compliant_record(config.contact, config.robot.foot_radius)
+        self._model = raw(record)                   # what the kernels read and update
+        self.anchors = record["anchors"][0]         # views of it
+        self._applied_forces, self._applied_offsets = record["applied_forces"][0], record["applied_offsets"][0]
+        rule = terrain.candidate_rule()
+        self._boxes, self._rule = raw(terrain.boxes.records), None if rule is None else raw(rule)
         self._body_corners = body_corners(config.robot.body_size)
         self._acting, self._pending, self._pending_bits = FootContacts.none(), FootContacts.none(), 0
         self._applications: tuple = ((),) * (1 << LEGS)
@@ -264,32 +267,28 @@ class CompliantContact(ContactModel):
             add_force(force, offset, False, True)
         self._acting = self._pending
 
-    def update(self, state: np.ndarray) -> FootContacts:
-        """The contacts that acted during the step just taken; computes the next step's."""
+    def read_state(self, positions, velocities, read_out_raw):
+        """The state read-out with the next step's contact computed from it, in one compiled call
+        (two for a terrain with candidate boxes of its own, found in Python between them)."""
         if self._rule is not None:
-            step, bits = _hard_finger_step(state, self.law, self._boxes, self._rule, self.memory)
-        else:
+            state, finite, up, self._pending_bits = _read_out_and_hard_finger(
+                positions, velocities, read_out_raw, self._model, self._boxes, self._rule)
+            return state, finite, up
+        state, finite, up = read_out(positions, velocities, read_out_raw)
+        if finite:
             candidates = np.ascontiguousarray(self.terrain.candidates(state["foot_centers"]), dtype=np.int64)
-            step, bits = _hard_finger_step_among(state, self.law, self._boxes, candidates, self.memory)
-        self._pending = FootContacts(step["forces"], step["normal_forces"], step["normals"], step["points"],
-                                     IN_CONTACT[bits])
-        self._pending_bits = bits
+            self._pending_bits = _hard_finger_among(state, self._model, self._boxes, candidates)
+        return state, finite, up
+
+    def update(self, state: np.ndarray) -> FootContacts:
+        """The contacts that acted during the step just taken; the next step's are in `state`."""
+        self._pending = FootContacts(state["contact_forces"], state["contact_normal_forces"], state["contact_normals"],
+                                     state["contact_points"], IN_CONTACT[self._pending_bits])
         return self._acting
 
     def pending(self) -> FootContacts:
         """The contacts the next step applies."""
         return self._pending
-
-    def compute(self, feet: WorldFeet) -> tuple[FootContacts, np.ndarray]:
-        """The compiled model on `feet` (WorldFeet) against this model's anchors, outside a run: the
-        contacts and the contact points in the tibias' frames."""
-        candidates = np.ascontiguousarray(self.terrain.candidates(feet.centers), dtype=np.int64)
-        step, local_points, bits = _hard_finger_of(feet, self.law, self._boxes, candidates, self.anchors)
-        return FootContacts(step["forces"], step["normal_forces"], step["normals"], step["points"],
-                            IN_CONTACT[bits].copy()), local_points
-
-    def reset(self) -> None:
-        self.anchors[:] = np.nan
 
     def body_touches_ground(self, state: np.ndarray) -> bool:
         """Whether a corner of the body's box lies inside the terrain."""
@@ -307,57 +306,56 @@ def body_corners(body_size) -> np.ndarray:
 
 
 @njit(cache=True)
-def _feet_of(state):
-    return WorldFeet(state.foot_centers, state.foot_velocities, state.tibia_spins, state.tibia_rotations,
-                     state.tibia_origins)
+def _read_out_and_hard_finger(positions, velocities, read_out_raw, model_raw, boxes_raw, rule_raw):
+    """state.read_out, then the compliant model's next step on the feet it read out, among the
+    candidate boxes of the terrain's CANDIDATE_RULE (all records as bytes): the STATE array, whether
+    it is finite, world_from_body[2, 2], and the touching feet as bits."""
+    state = np.zeros((), STATE)
+    finite, up = read_out_into(positions, velocities, the_record(read_out_raw.view(READ_OUT)), state[()])
+    if not finite:
+        return state, finite, up, 0
+    candidates = candidates_by_rule(state[()].foot_centers, rule_raw.view(CANDIDATE_RULE))
+    return state, finite, up, _hard_finger_step(state[()], model_raw, boxes_raw, candidates)
 
 
 @njit(cache=True)
-def _hard_finger_step_among(state, law, boxes, candidates, memory):
-    """The compliant model's step on the feet of the read-out `state` (a 0-d record array) among
-    given candidate boxes: a new 0-d CONTACT_STEP array and the touching feet as bits; the applied
-    forces and offsets of the touching feet and the anchors into `memory`."""
-    step = np.zeros((), CONTACT_STEP)
-    out, kept = step[()], memory[0]
+def _hard_finger_among(state, model_raw, boxes_raw, candidates):
+    """The compliant model's next step on the feet of the 0-d STATE array `state` among given
+    candidate boxes: the touching feet as bits."""
+    return _hard_finger_step(state[()], model_raw, boxes_raw, candidates)
+
+
+@njit(cache=True)
+def _hard_finger_step(state, model_raw, boxes_raw, candidates):
+    """hard_finger_into on the feet of the STATE record `state`, into its contact fields; the
+    applied forces and offsets of the touching feet and the anchors into the COMPLIANT record."""
+    model = the_record(model_raw.view(COMPLIANT))
     local_points = np.empty((LEGS, 3))
-    feet = _feet_of(state[()])
-    bits = hard_finger_into(feet, law[0], boxes, candidates, kept.anchors,
-                            ContactArrays(out.forces, out.normal_forces, out.normals, out.points, local_points))
+    feet = WorldFeet(state.foot_centers, state.foot_velocities, state.tibia_spins, state.tibia_rotations,
+                     state.tibia_origins)
+    out = ContactArrays(state.contact_forces, state.contact_normal_forces, state.contact_normals,
+                        state.contact_points, local_points)
+    bits = hard_finger_into(feet, model, boxes_raw.view(BOX), candidates, model.anchors, out)
     for leg in range(LEGS):
         if (bits >> leg) & 1:
             for i in range(3):
-                kept.applied_forces[leg, i] = out.forces[leg, i]
-                kept.applied_offsets[leg, i] = local_points[leg, i]
-    return step, bits
+                model.applied_forces[leg, i] = state.contact_forces[leg, i]
+                model.applied_offsets[leg, i] = local_points[leg, i]
+    return bits
 
 
 @njit(cache=True)
-def _hard_finger_step(state, law, boxes, rule, memory):
-    """_hard_finger_step_among with the candidate boxes of the terrain's CANDIDATE_RULE `rule`."""
-    return _hard_finger_step_among(state, law, boxes, candidates_by_rule(state[()].foot_centers, rule), memory)
-
-
-@njit(cache=True)
-def _hard_finger_of(feet, law, boxes, candidates, anchors):
-    step = np.zeros((), CONTACT_STEP)
-    out = step[()]
-    local_points = np.empty((len(feet.centers), 3))
-    bits = hard_finger_into(feet, law[0], boxes, candidates, anchors,
-                            ContactArrays(out.forces, out.normal_forces, out.normals, out.points, local_points))
-    return step, local_points, bits
-
-
-@njit(cache=True)
-def _corners_in_ground(corners, state, boxes, rule):
+def _corners_in_ground(corners, state, boxes_raw, rule_raw):
     """Whether any of the body's `corners` (body frame), placed at the read-out `state`'s pose, lies
-    inside a candidate box of the terrain (CANDIDATE_RULE `rule`)."""
+    inside a candidate box of the terrain (BOX records and CANDIDATE_RULE, as bytes)."""
+    boxes = boxes_raw.view(BOX)
     pose = state[()]
     world = np.empty_like(corners)
     for row in range(len(corners)):
         for i in range(3):
             world[row, i] = (pose.rotation[i, 0] * corners[row, 0] + pose.rotation[i, 1] * corners[row, 1]
                              + pose.rotation[i, 2] * corners[row, 2]) + pose.position[i]
-    candidates = candidates_by_rule(world, rule)
+    candidates = candidates_by_rule(world, rule_raw.view(CANDIDATE_RULE))
     for row in range(len(world)):
         if closest_distance(world[row], boxes, candidates[row]) < 0.0:
             return True

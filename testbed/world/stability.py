@@ -13,21 +13,27 @@ import math
 import numpy as np
 from numba import njit
 
-from testbed.world.records import one_record
-from testbed.world.terrain import candidates_by_rule, closest_distance
+from testbed.world.records import one_record, raw, the_record
+from testbed.world.terrain import BOX, CANDIDATE_RULE, candidates_by_rule, closest_distance
 
 LEGS = 6
-# The support tracker's settings and its memory, one record in a one-element array: `debounce` s a
-# touch keeps counting, `foot_radius` m, `ground_tolerance` m a stance foot may float above the
-# ground and still support, `last_touch` each foot's latest touch time (s, updated in place).
+# The support tracker's settings and its memory: `debounce` s a touch keeps counting, `foot_radius`
+# m, `ground_tolerance` m a stance foot may float above the ground and still support, `last_touch`
+# each foot's latest touch time (s, updated in place).
 SUPPORT = np.dtype([("debounce", np.float64), ("foot_radius", np.float64), ("ground_tolerance", np.float64),
                     ("last_touch", np.float64, (LEGS,))])
 
 
 def support_record(debounce: float, foot_radius: float, ground_tolerance: float) -> np.ndarray:
-    """A one-element SUPPORT array with no touch yet (last_touch = -inf)."""
-    return one_record(SUPPORT, debounce=debounce, foot_radius=foot_radius, ground_tolerance=ground_tolerance,
-                      last_touch=-np.inf)
+    """The bytes of a SUPPORT record with no touch yet (last_touch = -inf), as the kernels take it;
+    `support_view` gives its fields."""
+    return raw(one_record(SUPPORT, debounce=debounce, foot_radius=foot_radius, ground_tolerance=ground_tolerance,
+                          last_touch=-np.inf))
+
+
+def support_view(support_raw: np.ndarray) -> np.void:
+    """The SUPPORT record of `support_record`'s bytes (a view)."""
+    return support_raw.view(SUPPORT)[0]
 
 
 # ---------------------------------------------------------------- the laws
@@ -84,15 +90,15 @@ def _distance_to_segments(point: np.ndarray, starts: np.ndarray, ends: np.ndarra
 
 # ---------------------------------------------------------------- per step, compiled
 @njit(cache=True)
-def stance_support(support, t, contact, swinging, feet, com, resting):
-    """The support polygon of the feet touching the ground now or within the `support` record's
+def stance_support(support_raw, t, contact, swinging, feet, com, resting):
+    """The support polygon of the feet touching the ground now or within the SUPPORT record's
     debounce, or `resting` (6,) bool on it, and the centre of mass's margin in it, in one compiled
-    call. `support` (a one-element SUPPORT array) holds each foot's latest touch time and is updated
-    in place from `contact` (6,) bool at time t; `feet` (6, 3); `com` (3,), of which x and y count.
+    call. The record (`support_raw`, its bytes: `support_record`) holds each foot's latest touch time,
+    updated in place from `contact` (6,) bool at time t; `feet` (6, 3); `com` (3,), of which x and y count.
     Third, the stance feet (not `swinging`) that neither touch the ground nor touched it within the
     debounce, as bits (leg i: 1 << i): the feet whose `resting` the caller may want to know (all
     False in a first call) before asking again."""
-    record = support[0]
+    record = the_record(support_raw.view(SUPPORT))
     last_touch = record.last_touch
     supporting = np.empty(len(feet), np.bool_)
     late = 0
@@ -108,23 +114,23 @@ def stance_support(support, t, contact, swinging, feet, com, resting):
 
 
 @njit(cache=True)
-def stance_support_on_terrain(support, t, contact, swinging, feet, com, boxes, rule):
+def stance_support_on_terrain(support_raw, t, contact, swinging, feet, com, boxes_raw, rule_raw):
     """The support polygon and the margin of `stance_support` in one compiled call with the terrain's
-    answer for the late stance feet: a late foot rests on the ground if its sphere (the record's
-    foot_radius) is within the record's ground_tolerance of the terrain (`boxes`, BOX records; the
-    candidates by the terrain's one-element CANDIDATE_RULE array `rule`), and the support is asked
-    again with the resting feet."""
+    answer for the late stance feet: a late foot rests on the ground if its sphere (the SUPPORT
+    record's foot_radius) is within the record's ground_tolerance of the terrain (its BOX records,
+    the candidates by its CANDIDATE_RULE; both as bytes), and the support is asked again with the
+    resting feet."""
     resting = np.zeros(len(feet), np.bool_)
-    polygon, margin, late = stance_support(support, t, contact, swinging, feet, com, resting)
+    polygon, margin, late = stance_support(support_raw, t, contact, swinging, feet, com, resting)
     if late == 0:
         return polygon, margin
-    record = support[0]
-    candidates = candidates_by_rule(feet, rule)
+    record, boxes = the_record(support_raw.view(SUPPORT)), boxes_raw.view(BOX)
+    candidates = candidates_by_rule(feet, rule_raw.view(CANDIDATE_RULE))
     for leg in range(len(feet)):
         if (late >> leg) & 1:
             distance = closest_distance(feet[leg], boxes, candidates[leg])
             resting[leg] = distance - record.foot_radius <= record.ground_tolerance
-    polygon, margin, _ = stance_support(support, t, contact, swinging, feet, com, resting)
+    polygon, margin, _ = stance_support(support_raw, t, contact, swinging, feet, com, resting)
     return polygon, margin
 
 

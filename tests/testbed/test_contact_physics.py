@@ -108,12 +108,12 @@ def test_same_seed_same_run(contact):
 def test_ctrl_c_inside_the_compiled_state_read_out_stops_the_run_cleanly(monkeypatch):
     """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
     comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted. (The
-    state read-out's first call is at t = 0, its 50th after step 49.)"""
-    from testbed.world import simulation
+    compliant contact's state read-out: its first call is at t = 0, its 50th after step 49.)"""
+    from testbed.world import contact
     from testbed.runtime.recording import NullRecorder
     from testbed.runtime.runner import run
 
-    kernel, calls = simulation._read_out, []
+    kernel, calls = contact._read_out_and_hard_finger, []
 
     def interrupted_at_the_50th_step(*args):
         calls.append(1)
@@ -124,7 +124,7 @@ def test_ctrl_c_inside_the_compiled_state_read_out_stops_the_run_cleanly(monkeyp
                 raise SystemError("<function _numba_unpickle> returned a result with an exception set") from interrupt
         return kernel(*args)
 
-    monkeypatch.setattr(simulation, "_read_out", interrupted_at_the_50th_step)
+    monkeypatch.setattr(contact, "_read_out_and_hard_finger", interrupted_at_the_50th_step)
     finished = []
     recorder = NullRecorder()
     monkeypatch.setattr(recorder, "finish", lambda metrics, error: finished.append(error))
@@ -134,13 +134,13 @@ def test_ctrl_c_inside_the_compiled_state_read_out_stops_the_run_cleanly(monkeyp
 
 
 def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
-    from testbed.world import simulation
+    from testbed.world import contact
     from testbed.runtime.runner import run
 
     def broken(*args):
         raise SystemError("something else")
 
-    monkeypatch.setattr(simulation, "_read_out", broken)
+    monkeypatch.setattr(contact, "_read_out_and_hard_finger", broken)
     with pytest.raises(SystemError, match="something else"):
         run(config.load(overrides={"run": {"duration": 0.05}}))
 

@@ -6,7 +6,7 @@ import pytest
 from testbed.runtime import config
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.control.odometry import GyroHeading, LegOdometry
-from testbed.world.stability import stability_margin, stance_support, support_polygon, support_record
+from testbed.world.stability import stability_margin, stance_support, support_polygon, support_record, support_view
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -93,7 +93,7 @@ def test_compiled_hull_and_margin_agree_with_the_readable_laws():
 def test_stance_support_keeps_recent_touches_and_matches_the_separate_functions():
     rng = np.random.default_rng(4)
     support = support_record(0.005, CFG.robot.foot_radius, 0.001)
-    last_touch = support["last_touch"][0]
+    last_touch = support_view(support)["last_touch"]
     for step in range(200):
         t = 0.001 * step
         feet, com = rng.normal(0.0, 0.2, (6, 3)), rng.normal(0.0, 0.05, 3)
@@ -291,5 +291,5 @@ def test_support_on_terrain_in_one_call_agrees_with_the_readable_path(name):
         for ours in ((polygon, margin), (own_polygon, own_margin)):
             np.testing.assert_allclose(ours[0], expected, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(ours[1], expected_margin, rtol=1e-12, atol=1e-12)
-        np.testing.assert_array_equal(support.last_touch, reference["last_touch"][0])
+        np.testing.assert_array_equal(support.last_touch, support_view(reference)["last_touch"])
     assert asked > 100

@@ -6,7 +6,7 @@ import pytest
 
 from testbed.runtime import config
 from testbed.runtime.runner import build_simulation
-from testbed.world.simulation import free_joint_transform, free_joint_twist
+from testbed.world.state import free_joint_transform, free_joint_twist
 
 TOLERANCE = dict(rtol=1e-12, atol=1e-12)
 
