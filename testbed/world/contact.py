@@ -35,7 +35,8 @@ from testbed.model.registry import Registry
 from testbed.world.config import ContactConfig
 from testbed.world.records import one_record, raw, the_record
 from testbed.world.state import READ_OUT, STATE, read_out, read_out_into
-from testbed.world.terrain import BOX, CANDIDATE_RULE, Terrain, candidates_by_rule, closest_distance, sphere_contact_arrays
+from testbed.world.terrain import (BOX, CANDIDATE_RULE, Terrain, candidates_by_rule, closest_distance,
+                                   sphere_contact_arrays)
 
 LEGS = 6
 

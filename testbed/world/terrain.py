@@ -25,7 +25,7 @@ from numba import njit
 from testbed.world.config import TerrainConfig
 from testbed.model.errors import ConfigError, PluginError
 from testbed.model.registry import Registry
-from testbed.world.records import one_record
+from testbed.world.records import one_record, the_record
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
 TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
@@ -355,7 +355,7 @@ def _blocks_around(points, grid):
 def candidates_by_rule(points, rule):
     """Terrain.candidates of (N, 3) `points` by a terrain's `candidate_rule()` (compiled; callable
     from other kernels)."""
-    record = rule[0]
+    record = the_record(rule)
     if record.kind == BLOCKS_AROUND:
         return _blocks_around(points, record)
     candidates = np.empty((len(points), record.boxes), np.int64)

@@ -165,3 +165,31 @@ def test_contact_models_come_from_the_registry():
     for _ in range(500):
         sim.step(sim.standing_targets)
     assert sim.body_transform()[0, 3] - start < -0.01            # downhill, with nothing to hold it
+
+
+def test_swapped_record_arguments_are_an_error():
+    """The per-step kernels take records as bytes and view them back by type: bytes of another
+    record type do not fit."""
+    from testbed.model.kinematics import LegGeometry
+    from testbed.world.contact import _read_out_and_hard_finger, compliant_record
+    from testbed.world.records import raw
+    from testbed.world.stability import stance_support_on_terrain, support_record
+    from testbed.world.state import read_out_record
+    from testbed.world.terrain import make_terrain
+    cfg = config.load()
+    for name in ("step", "rough"):
+        terrain = make_terrain(name, cfg, np.random.default_rng(0))
+        boxes, rule = raw(terrain.boxes.records), raw(terrain.candidate_rule())
+        support = support_record(0.005, cfg.robot.foot_radius, 0.001)
+        feet, touching = np.zeros((6, 3)), np.zeros(6, bool)
+        stance_support_on_terrain(support, 0.0, touching, touching, feet, np.zeros(3), boxes, rule)
+        with pytest.raises(ValueError):
+            stance_support_on_terrain(support, 0.0, touching, touching, feet, np.zeros(3), rule, boxes)
+        with pytest.raises(ValueError):
+            stance_support_on_terrain(rule, 0.0, touching, touching, feet, np.zeros(3), boxes, support)
+    read_out = raw(read_out_record(cfg.run.time_step, LegGeometry.from_config(cfg.robot)))
+    model = raw(compliant_record(cfg.contact, cfg.robot.foot_radius))
+    positions = np.zeros(24)
+    _read_out_and_hard_finger(positions, positions, read_out, model, boxes, rule)
+    with pytest.raises(ValueError):
+        _read_out_and_hard_finger(positions, positions, model, read_out, boxes, rule)
