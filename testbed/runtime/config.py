@@ -26,11 +26,10 @@ from testbed.control.controller import CONTROLLERS
 from testbed.control.gait import GAITS
 from testbed.model.robot_config import RobotConfig
 from testbed.world.config import ContactConfig, TerrainConfig
+from testbed.world.contact import CONTACT_MODELS
 from testbed.world.terrain import TERRAINS
 from testbed.model.errors import ConfigError
 from testbed.model.validation import finite, non_negative, positive, require
-
-CONTACTS = ("compliant", "dart")
 
 
 @dataclass(frozen=True)
@@ -47,7 +46,7 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         TERRAINS.check_spec(self.terrain)
-        require(self.contact in CONTACTS, f"unknown contact model '{self.contact}' (choose from {', '.join(CONTACTS)})")
+        CONTACT_MODELS.check_spec(self.contact)
         GAITS.check_spec(self.gait)
         check_estimator_spec(self.estimator)
         CONTROLLERS.check_spec(self.controller)

@@ -27,7 +27,8 @@ from testbed.model.errors import PluginError, PluginFailure, SimulationDiverged
 from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
-from testbed.world.stability import stance_support, stance_support_on_terrain
+from testbed.world.records import raw
+from testbed.world.stability import stance_support, stance_support_on_terrain, support_record, support_view
 from testbed.world.terrain import TERRAIN_STREAM, Terrain, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
@@ -62,24 +63,20 @@ class SupportTracker:
     def __init__(self, terrain, foot_radius: float):
         self.terrain = terrain
         self.foot_radius = foot_radius
-        self.last_touch = np.full(6, -np.inf)
+        self._support = support_record(CONTACT_DEBOUNCE, foot_radius, GROUND_TOLERANCE)
+        self.last_touch = support_view(self._support)["last_touch"]     # a view: the kernels update it
         self._not_resting = np.zeros(6, dtype=bool)
-        boxes = terrain.boxes
-        self._boxes = (boxes.centers, boxes.half_extents, boxes.rotations)
-        self._rule = terrain.candidate_rule()
+        rule = terrain.candidate_rule()
+        self._boxes, self._rule = raw(terrain.boxes.records), None if rule is None else raw(rule)
 
     def polygon_and_margin(self, truth, swinging: np.ndarray) -> tuple[np.ndarray, float]:
         """The support polygon and the centre of mass's stability margin in it: one compiled call
         which, when a stance foot is late, asks the terrain whether it rests on the ground (in
         Python for a terrain with candidate boxes of its own)."""
         if self._rule is not None:
-            centers, halves, rotations = self._boxes
-            return stance_support_on_terrain(self.last_touch, truth.foot_contact, swinging, truth.t,
-                                             truth.foot_positions, truth.com_position, CONTACT_DEBOUNCE,
-                                             self.foot_radius, GROUND_TOLERANCE, centers, halves, rotations,
-                                             *self._rule)
-        args = (self.last_touch, truth.foot_contact, swinging, truth.t, truth.foot_positions, truth.com_position,
-                CONTACT_DEBOUNCE)
+            return stance_support_on_terrain(self._support, truth.t, truth.foot_contact, swinging,
+                                             truth.foot_positions, truth.com_position, self._boxes, self._rule)
+        args = (self._support, truth.t, truth.foot_contact, swinging, truth.foot_positions, truth.com_position)
         polygon, margin, late_bits = stance_support(*args, self._not_resting)
         if late_bits:
             late = (late_bits >> np.arange(6)) & 1 == 1

@@ -244,12 +244,13 @@ class StageClock:
         from sensors.suite import SensorSuite
         from testbed.runtime.metrics import RunMetrics
         from testbed.control.pilot import Pilot
+        from testbed.world.contact import CompliantContact, DartContact
         from testbed.world.simulation import Simulation
 
         stack = ExitStack()
         for owner, name, stage in ((Simulation, "step", "step"), (Simulation, "truth", "truth"),
-                                   (Simulation, "_apply_compliant_contact", "contact"),
-                                   (Simulation, "_read_dart_contacts", "contact"), (SensorSuite, "update", "sensors"),
+                                   (CompliantContact, "apply", "contact"),
+                                   (DartContact, "update", "contact"), (SensorSuite, "update", "sensors"),
                                    (Pilot, "tick", "pilot"), (RunMetrics, "add", "metrics"),
                                    (testbed.runtime.runner, "make_tick", "metrics")):
             stack.enter_context(mock.patch.object(owner, name, self.wrap(getattr(owner, name), stage)))

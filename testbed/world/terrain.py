@@ -5,12 +5,19 @@ arrays), and also answers analytic height h(x, y) and normal n(x, y) queries, wh
 against the DART shapes. The compliant contact uses `closest`, the signed distance from points to
 the union of boxes with the surface normal there, so a foot meeting the riser of a step is pushed
 back by the riser rather than lifted vertically onto the top.
+
+The distance laws are written once in numpy (`distances_to_boxes`, `sphere_contacts`); compiled
+kernels beside them (`box_distance`, `sphere_contact_arrays`, `closest_distance`) serve the
+per-step contact and support checks, which ask six points against a few boxes every physics step.
+Kernels take the boxes as a structured array of `BOX` records and a terrain's candidate boxes as a
+one-element `CANDIDATE_RULE` array: fields by name, never by position.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -18,12 +25,24 @@ from numba import njit
 from testbed.world.config import TerrainConfig
 from testbed.model.errors import ConfigError, PluginError
 from testbed.model.registry import Registry
+from testbed.world.records import one_record, the_record
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
 TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
-# Rules by which compiled code finds Terrain.candidates (`candidates_by_rule`): every box, or the
-# blocks around each point (RoughTerrain).
+
+BOX = np.dtype([("center", np.float64, (3,)), ("half_extents", np.float64, (3,)), ("rotation", np.float64, (3, 3))])
+
+# How compiled code finds Terrain.candidates (`candidates_by_rule`): every one of `boxes` boxes, or
+# the blocks around each point on RoughTerrain's grid (x0, y0, cell, nx, ny).
 EVERY_BOX, BLOCKS_AROUND = 0, 1
+CANDIDATE_RULE = np.dtype([("kind", np.int64), ("boxes", np.int64), ("x0", np.float64), ("y0", np.float64),
+                           ("cell", np.float64), ("nx", np.int64), ("ny", np.int64)])
+
+
+def candidate_rule(kind: int, *, boxes: int = 0, x0: float = 0.0, y0: float = 0.0, cell: float = 1.0, nx: int = 1,
+                   ny: int = 1) -> np.ndarray:
+    """A one-element CANDIDATE_RULE array (the form compiled code takes it in)."""
+    return one_record(CANDIDATE_RULE, kind=kind, boxes=boxes, x0=x0, y0=y0, cell=cell, nx=nx, ny=ny)
 
 
 @dataclass(frozen=True)
@@ -36,6 +55,14 @@ class Boxes:
     def __len__(self) -> int:
         return len(self.centers)
 
+    @cached_property
+    def records(self) -> np.ndarray:
+        """The boxes as an (N,) structured array of BOX records, the form kernels take them in."""
+        records = np.zeros(len(self), BOX)
+        records["center"], records["half_extents"] = self.centers, self.half_extents
+        records["rotation"] = self.rotations
+        return records
+
 
 def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, bottom: float) -> Boxes:
     """Boxes spanning [x0, x1] x [y0, y1] arrays with the given top heights and a common bottom."""
@@ -45,22 +72,32 @@ def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, 
     return Boxes(centers, half, np.broadcast_to(np.eye(3), (len(centers), 3, 3)).copy())
 
 
+# ---------------------------------------------------------------- the distance to a box
 def distances_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance (N, K) from each point to each of its candidate boxes (N, K indices) and the
-    outward unit normal (N, K, 3) of that box's nearest surface. Negative distance means inside."""
-    return _distances(np.asarray(points, dtype=float), boxes.centers, boxes.half_extents, boxes.rotations,
-                      np.asarray(candidates))
+    outward unit normal (N, K, 3) of that box's nearest surface. Negative distance means inside.
+    Outside a box: the distance from its nearest point, the normal along it. Inside: the face
+    nearest the point (the first of equally near ones)."""
+    points, candidates = np.asarray(points, dtype=float), np.asarray(candidates)
+    rotation = boxes.rotations[candidates]                                      # (N, K, 3, 3)
+    local = np.einsum("nkji,nkj->nki", rotation, points[:, None, :] - boxes.centers[candidates])
+    excess = np.abs(local) - boxes.half_extents[candidates]
+    outside = np.sqrt(np.sum(np.maximum(excess, 0.0) ** 2, axis=-1))
+    face = np.argmax(excess, axis=-1)[..., None]
+    face_excess = np.take_along_axis(excess, face, -1)[..., 0]
+    towards_face = np.where(np.take_along_axis(local, face, -1) >= 0.0, 1.0, -1.0)
+    on_face = (np.arange(3) == face) * towards_face
+    off_box = np.maximum(excess, 0.0) * np.sign(local) / np.maximum(outside, 1e-12)[..., None]
+    local_normal = np.where((outside > 1e-12)[..., None], off_box, on_face)
+    normal = np.einsum("nkij,nkj->nki", rotation, local_normal)
+    return outside + np.minimum(face_excess, 0.0), normal
 
 
-# Point-to-box distances are compiled with numba: the contact asks for six points against a few
-# boxes every physics step, where numpy's per-call overhead (~100 us for this einsum chain) was a
-# quarter of the whole run loop; compiled, the query costs ~1 us.
 @njit(cache=True)
-def _box_distance(point, center, half, rotation, normal) -> float:
-    """Signed distance from `point` to one box; writes the outward normal of its nearest surface.
-    Outside: from the nearest point of the box. Inside: the face nearest the point. (On scalars and
-    tuples: three small arrays per call were half the contact's time, the feet asking a dozen boxes.)"""
-    dx, dy, dz = point[0] - center[0], point[1] - center[1], point[2] - center[2]
+def box_distance(point, box, normal) -> float:
+    """distances_to_boxes for one point and one BOX record, compiled; writes the normal into `normal`."""
+    dx, dy, dz = point[0] - box.center[0], point[1] - box.center[1], point[2] - box.center[2]
+    rotation, half = box.rotation, box.half_extents
     local = (rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz,
              rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz,
              rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz)
@@ -85,32 +122,14 @@ def _box_distance(point, center, half, rotation, normal) -> float:
 
 
 @njit(cache=True)
-def _distances(points, centers, halves, rotations, candidates):
+def box_distances(points, boxes, candidates):
+    """distances_to_boxes on BOX records, compiled."""
     n, k = candidates.shape
     distance, normal = np.empty((n, k)), np.empty((n, k, 3))
     for i in range(n):
         for j in range(k):
-            box = candidates[i, j]
-            distance[i, j] = _box_distance(points[i], centers[box], halves[box], rotations[box], normal[i, j])
+            distance[i, j] = box_distance(points[i], boxes[candidates[i, j]], normal[i, j])
     return distance, normal
-
-
-@njit(cache=True)
-def sphere_contact_arrays(spheres, radius, centers, halves, rotations, candidates):
-    """Terrain.sphere_contacts on the boxes' arrays (compiled; callable from other kernels)."""
-    n, k = candidates.shape
-    depth, blended, normal = np.zeros(n), np.zeros((n, 3)), np.empty(3)
-    for i in range(n):
-        for j in range(k):
-            box = candidates[i, j]
-            indentation = radius - _box_distance(spheres[i], centers[box], halves[box], rotations[box], normal)
-            if indentation > 0.0:
-                depth[i] = max(depth[i], indentation)
-                blended[i] += indentation * normal
-        length = math.sqrt(blended[i, 0] ** 2 + blended[i, 1] ** 2 + blended[i, 2] ** 2)
-        if length > 0.0:
-            blended[i] /= length
-    return depth, blended
 
 
 def signed_distance_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -122,6 +141,54 @@ def signed_distance_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.nd
     return distance[rows, best], normal[rows, best]
 
 
+@njit(cache=True)
+def closest_distance(point, boxes, candidates):
+    """signed_distance_to_boxes's distance of one point to the union of its `candidates` (a row of
+    box indices), compiled."""
+    normal = np.empty(3)
+    best = np.inf
+    for j in range(len(candidates)):
+        distance = box_distance(point, boxes[candidates[j]], normal)
+        if j == 0 or distance < best or (np.isnan(distance) and not np.isnan(best)):
+            best = distance
+    return best
+
+
+# ---------------------------------------------------------------- spheres in the terrain
+def sphere_contacts(centers: np.ndarray, radius: float, boxes: Boxes, candidates: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Indentation (N,) of spheres in the union of their candidate boxes and the contact normal (N, 3).
+
+    A sphere in a concave corner (a block's top against the riser of a higher neighbour) indents
+    several boxes at once; a single nearest-surface normal would then jump between them from one
+    step to the next. The normal is the indentation-weighted mean of every indented box's normal,
+    and the indentation the largest one: both continuous."""
+    distance, normal = distances_to_boxes(centers, boxes, candidates)
+    indentation = np.maximum(radius - distance, 0.0)
+    depth = indentation.max(axis=1, initial=0.0)
+    blended = np.einsum("nk,nki->ni", indentation, normal)
+    length = np.linalg.norm(blended, axis=1)
+    return depth, np.where((length > 0.0)[:, None], blended / np.where(length > 0.0, length, 1.0)[:, None], blended)
+
+
+@njit(cache=True)
+def sphere_contact_arrays(spheres, radius, boxes, candidates):
+    """sphere_contacts on BOX records, compiled (callable from other kernels)."""
+    n, k = candidates.shape
+    depth, blended, normal = np.zeros(n), np.zeros((n, 3)), np.empty(3)
+    for i in range(n):
+        for j in range(k):
+            indentation = radius - box_distance(spheres[i], boxes[candidates[i, j]], normal)
+            if indentation > 0.0:
+                depth[i] = max(depth[i], indentation)
+                blended[i] += indentation * normal
+        length = math.sqrt(blended[i, 0] ** 2 + blended[i, 1] ** 2 + blended[i, 2] ** 2)
+        if length > 0.0:
+            blended[i] /= length
+    return depth, blended
+
+
+# ---------------------------------------------------------------- terrains
 class Terrain:
     """Base class of every terrain, built-in or a user's plugin: a union of boxes (what DART and
     the compliant contact collide with) with analytic height and normal (what the tests, the
@@ -155,28 +222,22 @@ class Terrain:
         """(N, K) indices of the boxes that may hold the surface nearest each point."""
         return np.broadcast_to(self._every_box, (len(points), len(self._every_box)))
 
-    def candidate_rule(self) -> tuple[int, np.ndarray] | None:
-        """`candidates` for compiled code: the rule and its data for `candidates_by_rule`, which
-        gives the same boxes in the same order; None for a subclass with candidates of its own."""
+    def candidate_rule(self) -> np.ndarray | None:
+        """`candidates` for compiled code: a one-element CANDIDATE_RULE array for
+        `candidates_by_rule`, which gives the same boxes in the same order; None for a subclass
+        with candidates of its own."""
         if type(self).candidates is not Terrain.candidates:
             return None
-        return EVERY_BOX, np.array([len(self.boxes)], dtype=float)
+        return candidate_rule(EVERY_BOX, boxes=len(self.boxes))
 
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         points = np.atleast_2d(np.asarray(points, dtype=float))
         return signed_distance_to_boxes(points, self.boxes, self.candidates(points))
 
     def sphere_contacts(self, centers: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Indentation (N,) of spheres in the terrain and the contact normal (N, 3).
-
-        A sphere in a concave corner (a block's top against the riser of a higher neighbour)
-        indents several boxes at once; a single nearest-surface normal would then jump between
-        them from one step to the next. The normal is the indentation-weighted mean of every
-        indented box's normal, and the indentation the largest one: both continuous."""
+        """Indentation (N,) of spheres in the terrain and the contact normal (N, 3): `sphere_contacts`."""
         centers = np.atleast_2d(np.asarray(centers, dtype=float))
-        boxes = self.boxes
-        return sphere_contact_arrays(centers, float(radius), boxes.centers, boxes.half_extents, boxes.rotations,
-                                self.candidates(centers))
+        return sphere_contacts(centers, float(radius), self.boxes, self.candidates(centers))
 
 
 class FlatTerrain(Terrain):
@@ -250,6 +311,7 @@ class RoughTerrain(Terrain):
         bottom = -config.rough_amplitude - BASE_DEPTH
         boxes = _axis_aligned(gx.ravel(), gx.ravel() + cell, gy.ravel(), gy.ravel() + cell, tops.ravel(), bottom)
         super().__init__(config, boxes)
+        self._grid = candidate_rule(BLOCKS_AROUND, boxes=len(boxes), x0=x0, y0=y0, cell=cell, nx=self.nx, ny=self.ny)
 
     @classmethod
     def from_config(cls, config, rng: np.random.Generator) -> "RoughTerrain":
@@ -267,58 +329,40 @@ class RoughTerrain(Terrain):
 
     def candidates(self, points: np.ndarray) -> np.ndarray:
         """The block under each point and its eight neighbours (clipped at the terrain's edge)."""
-        x0, _, y0, _ = self.config.extent
-        return _grid_candidates(points, float(x0), float(y0), float(self.config.rough_cell), self.nx, self.ny)
+        return candidates_by_rule(np.asarray(points, dtype=float), self._grid)
 
-    def candidate_rule(self) -> tuple[int, np.ndarray] | None:
+    def candidate_rule(self) -> np.ndarray | None:
         if type(self).candidates is not RoughTerrain.candidates:
             return None
-        x0, _, y0, _ = self.config.extent
-        return BLOCKS_AROUND, np.array([x0, y0, self.config.rough_cell, self.nx, self.ny], dtype=float)
+        return self._grid
 
 
 @njit(cache=True)
-def _grid_candidates(points, x0, y0, cell, nx, ny):
-    # Compiled like the distance query it feeds: numpy's floor/clip/broadcast chain cost ~15 us a step.
+def _blocks_around(points, grid):
     candidates = np.empty((len(points), 9), np.int64)
     for i in range(len(points)):
-        ix = min(max(int(math.floor((points[i, 0] - x0) / cell)), 0), nx - 1)
-        iy = min(max(int(math.floor((points[i, 1] - y0) / cell)), 0), ny - 1)
+        ix = min(max(int(math.floor((points[i, 0] - grid.x0) / grid.cell)), 0), grid.nx - 1)
+        iy = min(max(int(math.floor((points[i, 1] - grid.y0) / grid.cell)), 0), grid.ny - 1)
         k = 0
         for dx in (-1, 0, 1):
             for dy in (-1, 0, 1):
-                candidates[i, k] = min(max(ix + dx, 0), nx - 1) * ny + min(max(iy + dy, 0), ny - 1)
+                candidates[i, k] = min(max(ix + dx, 0), grid.nx - 1) * grid.ny + min(max(iy + dy, 0), grid.ny - 1)
                 k += 1
     return candidates
 
 
 @njit(cache=True)
-def candidates_by_rule(points, rule, data):
+def candidates_by_rule(points, rule):
     """Terrain.candidates of (N, 3) `points` by a terrain's `candidate_rule()` (compiled; callable
-    from other kernels): every one of int(data[0]) boxes, or RoughTerrain's blocks around each point
-    on the grid data = (x0, y0, cell, nx, ny)."""
-    if rule == BLOCKS_AROUND:
-        return _grid_candidates(points, data[0], data[1], data[2], int(data[3]), int(data[4]))
-    boxes = int(data[0])
-    candidates = np.empty((len(points), boxes), np.int64)
+    from other kernels)."""
+    record = the_record(rule)
+    if record.kind == BLOCKS_AROUND:
+        return _blocks_around(points, record)
+    candidates = np.empty((len(points), record.boxes), np.int64)
     for i in range(len(points)):
-        for j in range(boxes):
+        for j in range(record.boxes):
             candidates[i, j] = j
     return candidates
-
-
-@njit(cache=True)
-def closest_distance(point, centers, halves, rotations, candidates):
-    """Terrain.closest's signed distance of one point to the union of its `candidates` (a row of
-    box indices): the smallest distance, the first of equal ones (numpy's argmin)."""
-    normal = np.empty(3)
-    best = np.inf
-    for j in range(len(candidates)):
-        box = candidates[j]
-        distance = _box_distance(point, centers[box], halves[box], rotations[box], normal)
-        if j == 0 or distance < best or (np.isnan(distance) and not np.isnan(best)):
-            best = distance
-    return best
 
 
 def _require_inside(value: float, low: float, high: float) -> None:

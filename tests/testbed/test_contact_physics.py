@@ -6,8 +6,10 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
+from testbed.model.errors import PluginError
 from testbed.runtime import config
 from testbed.runtime.runner import build_simulation
+from testbed.world.contact import CONTACT_MODELS, CompliantContact, DartContact
 
 CONTACTS = ["compliant", "dart"]
 
@@ -103,15 +105,15 @@ def test_same_seed_same_run(contact):
     assert not np.array_equal(a[1], c[1])
 
 
-def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypatch):
+def test_ctrl_c_inside_the_compiled_state_read_out_stops_the_run_cleanly(monkeypatch):
     """numba hands a kernel's returned arrays to Python through a callback; a Ctrl-C landing there
     comes out as a SystemError caused by KeyboardInterrupt. The run still ends as interrupted. (The
-    state read-out computes the contact: its first call is at t = 0, its 50th after step 49.)"""
-    from testbed.world import simulation
+    compliant contact's state read-out: its first call is at t = 0, its 50th after step 49.)"""
+    from testbed.world import contact
     from testbed.runtime.recording import NullRecorder
     from testbed.runtime.runner import run
 
-    kernel, calls = simulation._read_out, []
+    kernel, calls = contact._read_out_and_hard_finger, []
 
     def interrupted_at_the_50th_step(*args):
         calls.append(1)
@@ -122,7 +124,7 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
                 raise SystemError("<function _numba_unpickle> returned a result with an exception set") from interrupt
         return kernel(*args)
 
-    monkeypatch.setattr(simulation, "_read_out", interrupted_at_the_50th_step)
+    monkeypatch.setattr(contact, "_read_out_and_hard_finger", interrupted_at_the_50th_step)
     finished = []
     recorder = NullRecorder()
     monkeypatch.setattr(recorder, "finish", lambda metrics, error: finished.append(error))
@@ -132,12 +134,62 @@ def test_ctrl_c_inside_the_compiled_contact_model_stops_the_run_cleanly(monkeypa
 
 
 def test_other_system_errors_are_not_taken_for_an_interrupt(monkeypatch):
-    from testbed.world import simulation
+    from testbed.world import contact
     from testbed.runtime.runner import run
 
     def broken(*args):
         raise SystemError("something else")
 
-    monkeypatch.setattr(simulation, "_read_out", broken)
+    monkeypatch.setattr(contact, "_read_out_and_hard_finger", broken)
     with pytest.raises(SystemError, match="something else"):
         run(config.load(overrides={"run": {"duration": 0.05}}))
+
+
+class SlipperyContact(CompliantContact):
+    """A contact model from outside the registry's built-ins: the hard finger without friction."""
+
+    def __init__(self, config, terrain):
+        super().__init__(config.replace(contact={"friction": 0.0}), terrain)
+
+
+def test_contact_models_come_from_the_registry():
+    assert CONTACT_MODELS.names() == ("compliant", "dart")
+    assert CONTACT_MODELS.resolve("compliant") is CompliantContact and CONTACT_MODELS.resolve("dart") is DartContact
+    with pytest.raises(PluginError, match="unknown contact model 'glue'"):
+        CONTACT_MODELS.check_spec("glue")
+    spec = f"{__name__}:SlipperyContact"
+    cfg = config.load(overrides={"run": {"terrain": "slope", "contact": spec}})
+    sim = build_simulation(cfg)
+    assert type(sim.contact) is SlipperyContact
+    start = sim.body_transform()[0, 3]
+    for _ in range(500):
+        sim.step(sim.standing_targets)
+    assert sim.body_transform()[0, 3] - start < -0.01            # downhill, with nothing to hold it
+
+
+def test_swapped_record_arguments_are_an_error():
+    """The per-step kernels take records as bytes and view them back by type: bytes of another
+    record type do not fit."""
+    from testbed.model.kinematics import LegGeometry
+    from testbed.world.contact import _read_out_and_hard_finger, compliant_record
+    from testbed.world.records import raw
+    from testbed.world.stability import stance_support_on_terrain, support_record
+    from testbed.world.state import read_out_record
+    from testbed.world.terrain import make_terrain
+    cfg = config.load()
+    for name in ("step", "rough"):
+        terrain = make_terrain(name, cfg, np.random.default_rng(0))
+        boxes, rule = raw(terrain.boxes.records), raw(terrain.candidate_rule())
+        support = support_record(0.005, cfg.robot.foot_radius, 0.001)
+        feet, touching = np.zeros((6, 3)), np.zeros(6, bool)
+        stance_support_on_terrain(support, 0.0, touching, touching, feet, np.zeros(3), boxes, rule)
+        with pytest.raises(ValueError):
+            stance_support_on_terrain(support, 0.0, touching, touching, feet, np.zeros(3), rule, boxes)
+        with pytest.raises(ValueError):
+            stance_support_on_terrain(rule, 0.0, touching, touching, feet, np.zeros(3), boxes, support)
+    read_out = raw(read_out_record(cfg.run.time_step, LegGeometry.from_config(cfg.robot)))
+    model = raw(compliant_record(cfg.contact, cfg.robot.foot_radius))
+    positions = np.zeros(24)
+    _read_out_and_hard_finger(positions, positions, read_out, model, boxes, rule)
+    with pytest.raises(ValueError):
+        _read_out_and_hard_finger(positions, positions, model, read_out, boxes, rule)

@@ -1,24 +1,14 @@
-"""The state read-out's body pose and twist, computed from the root FreeJoint's coordinates, against
-DART's own getters bit for bit (signs of zeros included): the truth and every recorded byte rest on them.
-
-One case is left out: angular or linear rates with exact zeros beside non-zero ones (never met
-after the first step of a run) can give a twist component of -0.0 where DART gives 0.0 or back."""
+"""The state read-out against DART's own getters, and the compliant contact's per-step kernel
+against the readable hard-finger law, through walks with random joint targets."""
 
 import numpy as np
 import pytest
 
 from testbed.runtime import config
 from testbed.runtime.runner import build_simulation
-from testbed.world.simulation import free_joint_transform, free_joint_twist
+from testbed.world.state import free_joint_transform, free_joint_twist
 
-
-def assert_same_bits(ours: np.ndarray, dart: np.ndarray) -> None:
-    ours, dart = np.asarray(ours), np.asarray(dart)
-    assert ours.shape == dart.shape and ours.dtype == dart.dtype
-    if ours.dtype != np.float64:
-        assert np.array_equal(ours, dart)
-        return
-    assert np.array_equal(ours.view(np.uint64), dart.view(np.uint64)), np.abs(ours - dart).max()
+TOLERANCE = dict(rtol=1e-12, atol=1e-12)
 
 
 def rotation_vectors(rng: np.random.Generator) -> list[np.ndarray]:
@@ -33,7 +23,7 @@ def rotation_vectors(rng: np.random.Generator) -> list[np.ndarray]:
     return vectors
 
 
-def test_pose_and_twist_from_the_root_joint_equal_dart_getters_bit_for_bit():
+def test_pose_and_twist_from_the_root_joint_agree_with_dart_getters():
     sim = build_simulation(config.load())
     robot, body = sim.robot, sim.body
     rng = np.random.default_rng(11)
@@ -45,27 +35,9 @@ def test_pose_and_twist_from_the_root_joint_equal_dart_getters_bit_for_bit():
         robot.setPositions(positions)
         robot.setVelocities(velocities)
         transform = free_joint_transform(robot.getPositions())
-        assert_same_bits(transform, body.getWorldTransform().matrix())
-        assert_same_bits(free_joint_twist(transform[:3, :3], robot.getVelocities()), body.getSpatialVelocity())
-
-
-@pytest.mark.parametrize("contact", ["compliant", "dart"])
-def test_state_read_out_equals_dart_getters_through_a_walk(contact):
-    cfg = config.load(overrides={"run": {"terrain": "step", "gait": "tripod", "contact": contact}})
-    sim = build_simulation(cfg)
-    rng = np.random.default_rng(3)
-    targets = sim.standing_targets
-    for step in range(400):
-        if step % 50 == 0:
-            targets = sim.standing_targets + rng.normal(0.0, 0.1, 18)
-        sim.step(targets)
-        truth, transform = sim.truth(), sim.body_transform()
-        assert truth.t == sim.time == sim.world.getTime()
-        assert_same_bits(transform, sim.body.getWorldTransform().matrix())
-        assert_same_bits(truth.body_rotation, transform[:3, :3])
-        assert_same_bits(truth.body_position, transform[:3, 3])
-        assert_same_bits(free_joint_twist(transform[:3, :3], sim.robot.getVelocities()),
-                         sim.body.getSpatialVelocity())
+        np.testing.assert_allclose(transform, body.getWorldTransform().matrix(), **TOLERANCE)
+        np.testing.assert_allclose(free_joint_twist(transform[:3, :3], robot.getVelocities()),
+                                   body.getSpatialVelocity(), **TOLERANCE)
 
 
 def walk(sim, steps: int, seed: int = 3):
@@ -79,76 +51,102 @@ def walk(sim, steps: int, seed: int = 3):
         yield step
 
 
+@pytest.mark.parametrize("contact", ["compliant", "dart"])
+def test_state_read_out_agrees_with_dart_getters_through_a_walk(contact):
+    from scipy.spatial.transform import Rotation
+    cfg = config.load(overrides={"run": {"terrain": "step", "gait": "tripod", "contact": contact}})
+    sim = build_simulation(cfg)
+    for _ in walk(sim, 400):
+        truth, transform = sim.truth(), sim.body_transform()
+        assert truth.t == pytest.approx(sim.world.getTime(), abs=1e-12) and truth.t == sim.time
+        np.testing.assert_allclose(transform, sim.body.getWorldTransform().matrix(), **TOLERANCE)
+        np.testing.assert_array_equal(truth.body_rotation, transform[:3, :3])
+        np.testing.assert_array_equal(truth.body_position, transform[:3, 3])
+        np.testing.assert_allclose(free_joint_twist(transform[:3, :3], sim.robot.getVelocities()),
+                                   sim.body.getSpatialVelocity(), **TOLERANCE)
+        np.testing.assert_allclose(Rotation.from_quat(sim.body_quaternion()).as_matrix(), transform[:3, :3],
+                                   rtol=1e-12, atol=1e-12)
+
+
+def feet_of(state):
+    from testbed.model.kinematics import WorldFeet
+    return WorldFeet(state["foot_centers"], state["foot_velocities"], state["tibia_spins"], state["tibia_rotations"],
+                     state["tibia_origins"])
+
+
 @pytest.mark.parametrize("terrain", ["step", "rough"])
-def test_contact_in_the_read_out_equals_the_contact_model_bit_for_bit(terrain):
-    """The read-out computes the next step's compliant contact with the state: the forces, normals,
-    points and flags of CompliantContact.compute on the feet of world_feet (its own anchors), and
-    addExtForce gets those forces at those points."""
-    from testbed.world.contact import CompliantContact
+def test_compliant_contact_kernel_agrees_with_the_readable_law(terrain):
+    """Each step the compliant model computes the next step's contact from the state read out (the
+    compiled hard_finger_into): the forces, normals, points and flags of the readable hard_finger on
+    the terrain's readable sphere_contacts from the same anchors, the anchors it leaves, and the
+    forces and tibia-frame points that the next step's addExtForce calls get. The feet in the state
+    are kinematics.world_feet's."""
     from testbed.model.kinematics import world_feet
+    from testbed.world.contact import hard_finger
     cfg = config.load(overrides={"run": {"terrain": terrain, "gait": "tripod"}})
     sim = build_simulation(cfg)
-    model = CompliantContact(cfg.contact, sim.terrain, cfg.robot.foot_radius)
+    model, radius = sim.contact, cfg.robot.foot_radius
     touched = 0
+    anchors = model.anchors.copy()
     for _ in walk(sim, 400):
-        truth = sim.truth()
-        feet = world_feet(sim.geometry, truth.body_rotation, truth.body_position, truth.body_angular_velocity,
-                          truth.body_linear_velocity, truth.joint_positions, truth.joint_velocities)
-        links = np.concatenate([feet.velocities[:, None], feet.spins[:, None], feet.tibia_rotations,
-                                feet.tibia_origins[:, None]], axis=1)
-        expected, offsets = model.compute(feet.centers, links)
-        pending = sim._pending
-        for ours, theirs in zip(pending, expected):
-            assert_same_bits(ours, theirs)
-        assert_same_bits(truth.foot_positions, feet.centers)
-        assert_same_bits(sim.compliant.anchors, model.anchors)
+        truth, feet = sim.truth(), feet_of(sim.state())
+        for ours, theirs in zip(feet, world_feet(sim.geometry, truth.body_rotation, truth.body_position,
+                                                  truth.body_angular_velocity, truth.body_linear_velocity,
+                                                  truth.joint_positions, truth.joint_velocities)):
+            np.testing.assert_allclose(ours, theirs, **TOLERANCE)
+        depth, normals = sim.terrain.sphere_contacts(feet.centers, radius)
+        expected, offsets = hard_finger(feet, depth, normals, anchors, cfg.contact, radius)
+        pending = model.pending()
+        for ours, theirs in zip(pending[:4], expected[:4]):
+            np.testing.assert_allclose(ours, theirs, **TOLERANCE)
+        np.testing.assert_array_equal(pending.in_contact, expected.in_contact)
+        np.testing.assert_allclose(model.anchors, anchors, **TOLERANCE)
         touching = expected.in_contact
-        assert sim._pending_bits == sum(1 << leg for leg in range(6) if touching[leg])
-        assert_same_bits(sim._applied_forces[touching], expected.forces[touching])
-        assert_same_bits(sim._applied_offsets[touching], offsets[touching])
+        np.testing.assert_allclose(model._applied_forces[touching], expected.forces[touching], **TOLERANCE)
+        np.testing.assert_allclose(model._applied_offsets[touching], offsets[touching], **TOLERANCE)
+        anchors = model.anchors.copy()          # the next step starts from the kernel's anchors
         touched += touching.sum()
     assert touched > 500
 
 
 @pytest.mark.parametrize("terrain", ["step", "rough"])
 def test_terrain_with_its_own_candidates_gives_the_same_run(terrain):
-    """A terrain without a candidate rule takes the read-out's Python path for its candidate boxes
-    (and the ground check's): the same run bit for bit."""
+    """A terrain without a candidate rule has its candidate boxes found in Python (for the contact
+    and the ground check): the same boxes into the same kernels, so the same run."""
     from testbed.world.terrain import make_terrain
     from testbed.world.simulation import Simulation
     from tests.testbed.test_terrain import OwnCandidates
     cfg = config.load(overrides={"run": {"terrain": terrain}})
     make = lambda: make_terrain(terrain, cfg, np.random.default_rng(1))
     ruled, own = Simulation(cfg, make()), Simulation(cfg, OwnCandidates.of(make()))
-    assert own._candidate_rule is None and ruled._candidate_rule is not None
+    assert own.terrain.candidate_rule() is None and ruled.terrain.candidate_rule() is not None
     for _ in zip(walk(ruled, 300), walk(own, 300)):
         for ours, theirs in zip(own.truth(), ruled.truth()):
-            assert_same_bits(ours, theirs)
-        for ours, theirs in zip(own._pending, ruled._pending):
-            assert_same_bits(ours, theirs)
+            np.testing.assert_array_equal(ours, theirs)
+        for ours, theirs in zip(own.contact.pending(), ruled.contact.pending()):
+            np.testing.assert_array_equal(ours, theirs)
         assert own.body_touches_ground() == ruled.body_touches_ground()
 
 
 @pytest.mark.parametrize("terrain", ["flat", "slope", "step", "rough"])
-def test_body_ground_check_equals_numpy_corners_in_the_boxes(terrain):
-    """The compiled ground check against the numpy version it replaced (corners @ R.T + p, then
-    the distances to the terrain's candidate boxes), over poses in, near and above the ground."""
+def test_compiled_body_ground_check_agrees_with_the_readable_one(terrain):
+    """The compiled ground check against corners @ R.T + p and the terrain's readable closest
+    distances, over poses in, near and above the ground."""
     from scipy.spatial.transform import Rotation
-    from testbed.world.terrain import distances_to_boxes
     sim = build_simulation(config.load(overrides={"run": {"terrain": terrain}}))
     rng = np.random.default_rng(8)
     rotations = Rotation.random(400, random_state=9).as_matrix()
+    corners_body = sim.contact._body_corners
     inside = 0
     for index, rotation in enumerate(rotations):
         tilt = 0.3 if index % 2 else 3.0
         rotation = Rotation.from_rotvec(Rotation.from_matrix(rotation).as_rotvec() * tilt / np.pi).as_matrix()
         position = np.array([*rng.uniform(-1.0, 1.0, 2), rng.uniform(-0.02, 0.12)])
-        sim._frame = sim._frame.copy()
-        sim._frame[0:3], sim._frame[3] = rotation, position
-        transform = sim.body_transform()
-        corners = sim._body_corners @ transform[:3, :3].T + transform[:3, 3]
-        distance, _ = distances_to_boxes(corners, sim.terrain.boxes, sim.terrain.candidates(corners))
-        expected = bool((distance < 0.0).any())
+        state = sim.state().copy()
+        state["rotation"], state["position"] = rotation, position
+        sim._state = state
+        corners = corners_body @ rotation.T + position
+        expected = bool((sim.terrain.closest(corners)[0] < 0.0).any())
         assert sim.body_touches_ground() == expected
         inside += expected
     assert 20 < inside < 380

@@ -97,60 +97,58 @@ class OwnCandidates:
 def test_candidate_rules_give_the_terrains_candidates_and_closest_distances(name):
     from testbed.world.terrain import candidates_by_rule, closest_distance
     terrain = make_terrain(name, CFG, np.random.default_rng(3))
-    rule, data = terrain.candidate_rule()
+    rule = terrain.candidate_rule()
     rng = np.random.default_rng(5)
     points = np.column_stack([rng.uniform(-2.5, 2.5, (300, 2)), rng.uniform(-0.06, 0.06, 300)])
     points[:20, 0] = CFG.terrain.step_edge_x + rng.normal(0.0, 1e-3, 20)      # at the step's riser
     points[20:40, :2] = np.round(points[20:40, :2] / CFG.terrain.rough_cell) * CFG.terrain.rough_cell  # block edges
-    candidates = candidates_by_rule(points, rule, data)
+    candidates = candidates_by_rule(points, rule)
     np.testing.assert_array_equal(candidates, terrain.candidates(points))
-    boxes = terrain.boxes
-    distances = [closest_distance(point, boxes.centers, boxes.half_extents, boxes.rotations, row)
-                 for point, row in zip(points, candidates)]
-    expected = terrain.closest(points)[0]
-    assert np.array_equal(np.array(distances).view(np.uint64), expected.view(np.uint64))
+    distances = [closest_distance(point, terrain.boxes.records, row) for point, row in zip(points, candidates)]
+    np.testing.assert_allclose(distances, terrain.closest(points)[0], rtol=1e-12, atol=1e-12)
     assert OwnCandidates.of(terrain).candidate_rule() is None
 
 
-def test_box_distance_on_scalars_equals_its_array_version_bit_for_bit():
-    """terrain._box_distance against the version on (3,) arrays it replaced (below, as it was), over
-    points inside, outside, on faces and edges of rotated and axis-aligned boxes."""
-    import math
-    from numba import njit
+def random_boxes(rng: np.random.Generator, count: int):
+    """Axis-aligned boxes, then rotated ones, with points inside, outside, near and (axis-aligned
+    only, where no rounding can pick another face) on their faces, edges and corners."""
     from scipy.spatial.transform import Rotation
-    from testbed.world.terrain import _box_distance
+    from testbed.world.terrain import Boxes
+    rotations = np.concatenate([np.broadcast_to(np.eye(3), (count, 3, 3)),
+                                Rotation.random(count, random_state=7).as_matrix()])
+    centers, halves = rng.normal(0.0, 0.2, (2 * count, 3)), rng.uniform(0.01, 0.3, (2 * count, 3))
+    points = []
+    for index, (center, half, rotation) in enumerate(zip(centers, halves, rotations)):
+        scales = (0.5, 0.999, 1.0, 1.001, 2.0) if index < count else (0.5, 0.999, 1.001, 2.0)
+        for scale in scales:
+            signs = rng.choice([-1.0, 1.0], 3)
+            points.append(center + rotation @ (half * signs * np.where(rng.random(3) < 0.5, scale, rng.random(3))))
+    return Boxes(centers, halves, rotations), np.array(points)
 
-    @njit
-    def on_arrays(point, center, half, rotation, normal):
-        local, excess = np.empty(3), np.empty(3)
-        outside_sq, face = 0.0, 0
-        for i in range(3):
-            local[i] = (rotation[0, i] * (point[0] - center[0]) + rotation[1, i] * (point[1] - center[1])
-                        + rotation[2, i] * (point[2] - center[2]))
-            excess[i] = abs(local[i]) - half[i]
-            if excess[i] > 0.0:
-                outside_sq += excess[i] * excess[i]
-            if excess[i] > excess[face]:
-                face = i
-        outside_norm = math.sqrt(outside_sq)
-        normal_local = np.zeros(3)
-        if outside_norm > 1e-12:
-            for i in range(3):
-                normal_local[i] = max(excess[i], 0.0) * np.sign(local[i]) / outside_norm
-        else:
-            normal_local[face] = 1.0 if local[face] >= 0.0 else -1.0
-        for i in range(3):
-            normal[i] = rotation[i, 0] * normal_local[0] + rotation[i, 1] * normal_local[1] + rotation[i, 2] * normal_local[2]
-        return outside_norm + min(excess[face], 0.0)
 
-    rng = np.random.default_rng(6)
-    rotations = np.concatenate([np.broadcast_to(np.eye(3), (100, 3, 3)), Rotation.random(100, random_state=7).as_matrix()])
-    for rotation in rotations:
-        center, half = rng.normal(0.0, 0.2, 3), rng.uniform(0.01, 0.3, 3)
-        for scale in (0.5, 0.999, 1.0, 1.001, 2.0):
-            point = center + rotation @ (half * rng.choice([-1.0, 1.0], 3) * np.where(rng.random(3) < 0.5, scale, rng.random(3)))
-            ours, theirs = np.empty(3), np.empty(3)
-            distance = _box_distance(point, center, half, rotation, ours)
-            expected = on_arrays(point, center, half, rotation, theirs)
-            assert np.array_equal(np.array([distance]).view(np.uint64), np.array([expected]).view(np.uint64))
-            assert np.array_equal(ours.view(np.uint64), theirs.view(np.uint64))
+def test_compiled_box_distances_agree_with_the_numpy_law():
+    from testbed.world.terrain import box_distances, distances_to_boxes
+    boxes, points = random_boxes(np.random.default_rng(6), 100)
+    candidates = np.tile(np.arange(len(boxes)), (len(points), 1))
+    expected_distance, expected_normal = distances_to_boxes(points, boxes, candidates)
+    distance, normal = box_distances(points, boxes.records, candidates)
+    np.testing.assert_allclose(distance, expected_distance, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(normal, expected_normal, rtol=1e-12, atol=1e-12)
+    assert (expected_distance < 0.0).any() and (expected_distance > 0.0).any()
+
+
+@pytest.mark.parametrize("name", ["step", "rough"])
+def test_compiled_sphere_contacts_agree_with_the_numpy_law(name):
+    from testbed.world.terrain import sphere_contact_arrays
+    terrain = make_terrain(name, CFG, np.random.default_rng(3))
+    rng = np.random.default_rng(9)
+    radius = CFG.robot.foot_radius
+    xy = rng.uniform(-1.5, 1.5, (500, 2))
+    xy[:100, 0] = CFG.terrain.step_edge_x + rng.normal(0.0, radius, 100)   # against the riser
+    centers = np.column_stack([xy, terrain.height(xy) + rng.uniform(-radius, 2 * radius, len(xy))])
+    depth, normal = terrain.sphere_contacts(centers, radius)
+    candidates = np.ascontiguousarray(terrain.candidates(centers), dtype=np.int64)
+    compiled_depth, compiled_normal = sphere_contact_arrays(centers, radius, terrain.boxes.records, candidates)
+    np.testing.assert_allclose(compiled_depth, depth, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(compiled_normal, normal, rtol=1e-12, atol=1e-12)
+    assert 50 < (depth > 0.0).sum() < 450
