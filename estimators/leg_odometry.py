@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from testbed.model.kinematics import LegGeometry, world_feet_arrays
+from testbed.model.kinematics import LegGeometry, world_feet_of
 
 NUM_LEGS = 6
 _IDENTITY, _ORIGIN = np.eye(3), np.zeros(3)
@@ -79,8 +79,7 @@ class StanceTracker:
         # eq. 2 through the testbed's compiled kinematics (a body at the origin, at rest: its world
         # frame is the body frame); a NaN joint angle gives its leg a NaN foot.
         g = self.geometry
-        return world_feet_arrays(*_STILL, np.asarray(positions, dtype=float), _NO_RATES, g.base_angle,
-                                 g.base_distance, g.femur, g.tibia)[0]
+        return world_feet_of(*_STILL, np.asarray(positions, dtype=float), _NO_RATES, g.arrays[0])[0]
 
     def read(self, positions: np.ndarray, rolling: tuple[np.ndarray, np.ndarray, tuple, float] | None) -> Reading:
         """`feet`, `measured` and `measurable` of an encoder sample, with the measurable legs split into tracked
@@ -116,8 +115,7 @@ def _read(positions, record, rolling, filter_feet, body_turn, up, radius):
                     filter_feet[leg] += shift[leg]
         t.previous[:] = positions
         t.have_previous = True
-    feet = world_feet_arrays(_IDENTITY, _ORIGIN, _ORIGIN, _ORIGIN, positions, _NO_RATES, t.base_angle,
-                             t.base_distance, t.femur, t.tibia)[0]
+    feet = world_feet_of(_IDENTITY, _ORIGIN, _ORIGIN, _ORIGIN, positions, _NO_RATES, t)[0]
     t.feet[:] = feet
     t.measured[:] = feet - t.origin
     tracked_count = 0

@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from testbed.model import spatial as rot
-from testbed.model.kinematics import LegGeometry, foot_positions_arrays, matrix_times_vector
+from testbed.model.kinematics import LegGeometry, foot_positions_arrays
 
 # m: one foot's position error from the encoders (0.9 mrad per joint of noise and quantization
 # through about 0.23 m of leg). It sets the scale below which a foot's rolling does not matter.
@@ -120,7 +120,7 @@ def _rigid_motion(before: _Reading, after: _Reading) -> tuple[float, float, floa
     motion. Weights come from both readings: a weight taken from one reading alone shares that
     reading's encoder noise with the foot positions, and the product drifts a standing robot's pose."""
     if before.heading is not None and after.heading is not None:
-        turn = _wrap(after.heading - before.heading)
+        turn = float(rot.wrap_angle(after.heading - before.heading))
         planted, shift_x, shift_y = _shift_for_turn(before.table, after.table, before.stance, after.stance, turn)
         return (turn, shift_x, shift_y) if planted else None
     both = before.stance & after.stance
@@ -191,10 +191,6 @@ def _shift_for_turn(before, after, stance_before, stance_after, turn):
             centre_before[1] - (s * centre_after[0] + c * centre_after[1]))
 
 
-def _wrap(angle: float) -> float:
-    return float((angle + np.pi) % (2.0 * np.pi) - np.pi)
-
-
 class GyroHeading:
     """Yaw from the gyro, its bias averaged over a still start-up period.
 
@@ -221,7 +217,7 @@ class GyroHeading:
                 return
             self.yaw = yaw
         else:
-            rate = matrix_times_vector(self.body_from_sensor, gyro, np.empty(3))
+            rate = rot.matvec3(self.body_from_sensor, gyro)
             if not np.isfinite(rate).all():
                 return
             if t < self.calibration_time:
@@ -237,7 +233,7 @@ def _turn(attitude, body_from_sensor, gyro, bias, dt):
     """(whether the rate is finite, the new yaw): `attitude` (x, y, z, w) followed, in place, by the
     body-frame rotation (body_from_sensor gyro - bias) dt, through testbed.model.spatial's helpers
     (tests/testbed/test_odometry_and_stability.py compares them)."""
-    rate = matrix_times_vector(body_from_sensor, gyro, np.empty(3))
+    rate = rot.matvec3(body_from_sensor, gyro)
     for axis in range(3):
         if not math.isfinite(rate[axis]):
             return False, 0.0

@@ -12,12 +12,10 @@ from functools import cached_property
 from typing import Literal, NamedTuple
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit
 
 from testbed.model.robot_config import RobotConfig
+from testbed.model.spatial import wrap_angle
 
 Elbow = Literal["up", "down"]
 
@@ -130,25 +128,6 @@ def rows_times_matrix(points, matrix, out):
     return out
 
 
-@njit(cache=True)
-def matrix_times_vector(matrix, vector, out):
-    """out = matrix @ vector for a 3x3 matrix and a 3-vector."""
-    for row in range(3):
-        out[row] = matrix[row, 0] * vector[0] + matrix[row, 1] * vector[1] + matrix[row, 2] * vector[2]
-    return out
-
-
-@intrinsic
-def fused_multiply_add(typingctx, a, b, c):
-    """a * b + c with one rounding (compiled code only). Nothing in this module uses it; it stays
-    while estimators/linalg.py imports it."""
-    def codegen(context, builder, signature, args):
-        double = ir.DoubleType()
-        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(double, [double] * 3), "llvm.fma.f64")
-        return builder.call(function, args)
-    return types.float64(types.float64, types.float64, types.float64), codegen
-
-
 def foot_positions(geom: LegGeometry, q: np.ndarray) -> np.ndarray:
     """(6, 3) foot positions p_i^b for the 18 joint angles q: eq. 2 for all legs at once."""
     return foot_positions_arrays(np.asarray(q, dtype=float).reshape(18), geom.arrays)
@@ -186,25 +165,14 @@ def world_feet(geom: LegGeometry, rotation: np.ndarray, position: np.ndarray, an
     `rotation`, `position`) moving with the body's world-frame angular and linear velocity; joint
     angles and rates `q`, `dq` (18,). What DART's per-body transform and velocity getters give,
     in one compiled call instead of eighteen Python calls into DART."""
-    return WorldFeet(*world_feet_of(rotation, position, angular_velocity, linear_velocity, q, dq, geom.arrays))
+    return WorldFeet(*world_feet_of(rotation, position, angular_velocity, linear_velocity, q, dq, geom.arrays[0]))
 
 
 @njit(cache=True)
-def world_feet_arrays(rotation, position, omega, velocity, q, dq, base_angle, base_distance, a2, a3):
-    """world_feet_of with the geometry as separate arrays, for the callers not yet moved to the
-    LEG_ARRAYS record (estimators/leg_odometry.py, testbed/world/simulation.py)."""
-    legs = np.empty(1, LEG_ARRAYS)
-    legs[0].base_angle[:] = base_angle
-    legs[0].base_distance[:] = base_distance
-    legs[0].femur, legs[0].tibia = a2, a3
-    return world_feet_of(rotation, position, omega, velocity, q, dq, legs)
-
-
-@njit(cache=True)
-def world_feet_of(rotation, position, omega, velocity, q, dq, legs):
-    """world_feet on a LEG_ARRAYS record (of which it reads base_angle, base_distance, femur and
-    tibia): (centers, velocities, spins, tibia rotations, tibia origins)."""
-    g = legs[0]
+def world_feet_of(rotation, position, omega, velocity, q, dq, g):
+    """world_feet with the geometry `g`, any record with the fields base_angle, base_distance, femur
+    and tibia (a LEG_ARRAYS element, or a kernel's own record holding them): (centers, velocities,
+    spins, tibia rotations, tibia origins)."""
     base_angle, base_distance, a2, a3 = g.base_angle, g.base_distance, g.femur, g.tibia
     centers, velocities, spins = np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 3))
     rotations, origins = np.empty((6, 3, 3)), np.empty((6, 3))
@@ -343,9 +311,9 @@ def _solve_leg(target, leg, legs, elbow_sign, out) -> int:
     # Two shoulder branches: the leg reaching towards the foot, or turned half a turn and reaching
     # back over the hip. The first within the joint limits wins.
     for branch in range(2):
-        th1 = heading if branch == 0 else _wrap(heading + math.pi)
+        th1 = heading if branch == 0 else wrap_angle(heading + math.pi)
         reach = horizontal if branch == 0 else -horizontal
-        th2 = _wrap(math.atan2(z, reach) - knee)
+        th2 = wrap_angle(math.atan2(z, reach) - knee)
         if branch == 0:
             out[0], out[1], out[2] = th1, th2, th3
         if _within(th1, lower[0], upper[0]) and _within(th2, lower[1], upper[1]) and _within(th3, lower[2], upper[2]):
@@ -378,11 +346,6 @@ def solve_legs_or_last(targets, legs, elbow_sign, last):
 @njit(cache=True)
 def _within(angle, low, high) -> bool:
     return low - LIMIT_TOLERANCE <= angle <= high + LIMIT_TOLERANCE
-
-
-@njit(cache=True)
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def nominal_stance(geom: LegGeometry, stance_radius: float, stance_height: float, foot_radius: float) -> np.ndarray:

@@ -5,7 +5,7 @@ translation; its rates: angular, then linear velocity), then the joints' eightee
 and twist follow from the root joint's as DART computes them (`free_joint_transform`,
 `free_joint_twist`; tests/testbed/test_simulation_state.py compares them with DART's getters), which
 holds for a FreeJoint to the world with identity offsets (`Simulation._check_root_joint`); the feet
-and tibias follow by eq. 2 (kinematics.world_feet_arrays). One compiled call per physics step
+and tibias follow by eq. 2 (kinematics.world_feet_of). One compiled call per physics step
 (`read_out`) returns them as one STATE record, whose fields the truth's arrays are views of.
 """
 
@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from testbed.model.kinematics import LegGeometry, world_feet_arrays
+from testbed.model.kinematics import LegGeometry, world_feet_of
 from testbed.world.records import one_record, the_record
 
 LEGS = 6
@@ -81,9 +81,9 @@ def read_out_into(positions, velocities, settings, out):
     out.quaternion[:] = rotation_to_quaternion(rotation)
     if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
         return False, rotation[2, 2]
-    centers, feet_velocities, spins, rotations, origins = world_feet_arrays(
+    centers, feet_velocities, spins, rotations, origins = world_feet_of(
         rotation, out.position, out.angular_velocity, out.linear_velocity, positions[ROOT_DOFS:],
-        velocities[ROOT_DOFS:], settings.base_angle, settings.base_distance, settings.femur, settings.tibia)
+        velocities[ROOT_DOFS:], settings)
     out.foot_centers[:] = centers
     out.foot_velocities[:] = feet_velocities
     out.tibia_spins[:] = spins
