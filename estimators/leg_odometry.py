@@ -100,7 +100,7 @@ _NO_ROLLING = (np.zeros((NUM_LEGS, 3)), np.zeros(3), (0.0, 0.0, 0.0), 0.0)
 
 
 # Compiled: the fusion filters read every encoder sample through it; as separate kernel and
-# numpy calls (feet, rolling shift, masks, index lists) it cost 16 us a reading, against 4 us.
+# numpy calls (feet, rolling shift, masks, index lists) the per-call cost would dominate.
 @njit(cache=True)
 def _read(positions, record, rolling, filter_feet, body_turn, up, radius):
     """The reading of the joint angles `positions` into the STANCE_TRACKER record's buffers; with
@@ -133,7 +133,7 @@ def _read(positions, record, rolling, filter_feet, body_turn, up, radius):
     return tracked_count, new_count
 
 
-# Compiled: at every foot sample (250 Hz), one call instead of three numpy ones (2.2 -> 1.1 us).
+# Compiled: it runs at every foot sample (250 Hz).
 @njit(cache=True)
 def _add_contacts(contact, normal_forces, min_force, planted, tracked):
     """planted = contact and loaded (a NaN force, dropped, is not), in place; tracked &= planted."""
@@ -142,7 +142,7 @@ def _add_contacts(contact, normal_forces, min_force, planted, tracked):
         tracked[leg] = tracked[leg] and planted[leg]
 
 
-# Compiled: it runs at every encoder sample, and as numpy array calls it cost ~25 us against ~1 us.
+# Compiled: it runs at every encoder sample.
 @njit(cache=True)
 def _rolling_shift(positions, previous, base_angle, body_turn, up, radius):
     shift = np.zeros((NUM_LEGS, 3))

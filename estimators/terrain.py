@@ -163,7 +163,7 @@ def _update(record: np.ndarray, elapsed: float, z: np.ndarray, R: np.ndarray, fi
     return RESTARTED if _kalman_update(record, elapsed, z, R) else UPDATED
 
 
-# Compiled: at every encoder sample; as numpy and separate kernel calls it cost 18 us against 3 us.
+# Compiled: it runs at every encoder sample.
 @njit(cache=True)
 def _update_from_feet(feet: np.ndarray, down: np.ndarray, q: rot.Quaternion, position_std: float, foot_radius: float,
                       record: np.ndarray, elapsed: float, first: bool) -> int:

@@ -114,7 +114,7 @@ def fewer_garbage_collections() -> Iterator[None]:
     tens of container objects a step (the truth's and the ticks' named tuples, samples, messages),
     most of which the recorder and the metrics keep: with the default thresholds the collector
     walked them every 700 allocations, and now and then the ~160k objects of the imported
-    libraries too (one full collection took 0.16 s): 5 to 20 us per step in all. The objects made
+    libraries too, a noticeable share of the loop's time. The objects made
     before the run are left out of collections (gc.freeze), and the youngest generation is
     collected every GC_ALLOCATIONS allocations. The loop makes no cyclic garbage of note; the
     results do not depend on when it is collected."""
