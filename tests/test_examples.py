@@ -69,6 +69,15 @@ def test_the_terrain_plugin_is_walked_with_the_posture_controller(tmp_path):
     assert m["fell"] is False and m["distance_m"] > 0.3 and m["tilt_max_deg"] < 2.0
 
 
+@pytest.mark.parametrize("terrain", ["step", "slope"])
+def test_the_posture_law_plugin_levels_the_body_with_the_built_in_gait(terrain, tmp_path):
+    run_cli(["run", "--terrain", terrain, "--gait", "tripod", "--controller", "posture", "--estimator", "ekf",
+             "--set", "posture.law=my_posture_law:IntegralLevelling", "--duration", "8", "--seed", "7",
+             "--out", "p.mcap", "--metrics", "p.json"], tmp_path)
+    m = metrics(tmp_path / "p.json")
+    assert m["fell"] is False and m["tilt_rms_deg"] < 0.3 and m["tilt_max_deg"] < 1.0 and m["ik_limited_ticks"] == 0
+
+
 def test_bench_compares_the_plugin_with_a_built_in(tmp_path):
     run_cli(["bench", "--terrains", "flat", "--seeds", "1", "--duration", "3", "--estimators", f"ekf,{ESTIMATOR}",
              "--workers", "1", "--out", "bench", "--cache", "cache"], tmp_path)
