@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import psutil
@@ -244,12 +245,17 @@ def test_a_killed_local_worker_does_not_lose_runs(tmp_path):
 def cluster(tmp_path):
     """A `dask scheduler` and two single-thread `dask worker` processes (no nanny: a killed worker
     stays dead) on 127.0.0.1; yields (address, {worker pid: Popen})."""
+    with dask_cluster(tmp_path, {**os.environ, **ONE_THREAD}) as running:
+        yield running
+
+
+@contextmanager
+def dask_cluster(tmp_path, environment: dict):
     from distributed import Client
 
     processes: list[subprocess.Popen] = []
     logs = tmp_path / "cluster-logs"
     logs.mkdir()
-    environment = {**os.environ, **ONE_THREAD}
 
     def start(name: str, *arguments: str) -> subprocess.Popen:
         log = (logs / f"{name}.log").open("w")
@@ -297,6 +303,20 @@ def test_dask_sweep_survives_a_killed_worker(cluster, tmp_path):
     assert {pids[name] for name in in_flight} == {survivor}
     for name in rows:
         recorded(folder / f"{name}.mcap")
+
+
+def test_dask_workers_import_a_plugin_estimator_and_terrain_themselves(tmp_path):
+    examples = str(Path(__file__).resolve().parents[2] / "examples")
+    plugin_env = {**os.environ, **ONE_THREAD, "PYTHONPATH": examples}
+    with dask_cluster(tmp_path, plugin_env) as (address, _):
+        result = subprocess.run([TESTBED, "sweep", "--terrains", "flat,my_terrain:Washboard", "--estimators",
+                                 "my_estimator:MyComplementary", "--seeds", "1", "--duration", "1.5", "--gait", "tripod",
+                                 "--scheduler", address, "--out", str(tmp_path / "runs")],
+                                capture_output=True, text=True, timeout=600, cwd=tmp_path, env=plugin_env)
+    assert result.returncode == 0, result.stderr
+    rows = index_rows(tmp_path / "runs")
+    assert {row["terrain"] for row in rows.values()} == {"flat", "my_terrain:Washboard"}
+    assert {row["estimator"] for row in rows.values()} == {"my_estimator:MyComplementary"}
 
 
 # --- bad input -------------------------------------------------------------------------------
