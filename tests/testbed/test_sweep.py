@@ -34,7 +34,7 @@ DASK = str(BIN / "dask")
 ESTIMATOR = "complementary"    # cheap and stable: these tests are about the sweep, not the estimators
 GRID = ["--terrains", "flat,step", "--seeds", "2", "--estimators", ESTIMATOR]
 NAMES = {f"{terrain}_seed{seed:03d}_{ESTIMATOR}_default" for terrain in ("flat", "step") for seed in (0, 1)}
-KILL_DURATION = "2.0"       # s simulated: a couple of seconds of wall time, long enough to be killed in
+KILL_DURATION = "5.0"       # s simulated: a second or two of wall time each, so that two runs overlap long enough to be killed in
 ONE_THREAD = {name: "1" for name in sweep.THREAD_VARIABLES}
 
 
