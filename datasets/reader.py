@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 from functools import partial
 from io import BytesIO
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 from mcap.exceptions import EndOfFile
-from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Message, Metadata, Schema
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
@@ -41,6 +42,12 @@ REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX, schemas.TRUTH_POSE.name, schem
 ALL_TOPICS = None
 _RECORD_LENGTH = struct.Struct("<Q")
 _MESSAGE_HEADER = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
+# Record layouts of the MCAP specification (little-endian): every record starts with its opcode
+# and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
+# channel id, sequence, log and publish time, then the data.
+RECORD_HEADER = struct.Struct("<BQ")
+MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
+MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 
 
 @dataclass
@@ -51,9 +58,12 @@ class TopicStats:
     last_ns: int | None = None
 
     def add(self, log_ns: int) -> None:
-        self.count += 1
-        self.first_ns = log_ns if self.first_ns is None else min(self.first_ns, log_ns)
-        self.last_ns = log_ns if self.last_ns is None else max(self.last_ns, log_ns)
+        self.add_many(1, log_ns, log_ns)
+
+    def add_many(self, count: int, first_ns: int, last_ns: int) -> None:
+        self.count += count
+        self.first_ns = first_ns if self.first_ns is None else min(self.first_ns, first_ns)
+        self.last_ns = last_ns if self.last_ns is None else max(self.last_ns, last_ns)
 
     @property
     def rate_hz(self) -> float | None:
@@ -199,9 +209,15 @@ def _importable(spec: str | None) -> type | None:
 
 def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS) -> Recording:
     """Everything readable in the file; the payloads of `topics` only (all when None; a name
-    ending in '/' takes every topic under it)."""
+    ending in '/' takes every topic under it). With a few topics of a complete file, only the
+    chunks that hold them are decompressed and only their messages sliced out (through the file's
+    summary and message indexes); a file without a usable summary is read front to back."""
     path = Path(path)
     _check_is_mcap(path)
+    if topics is not ALL_TOPICS:
+        recording = _read_indexed(path, topics)
+        if recording is not None:
+            return recording
     recording = Recording(path)
     state = _ReadState(recording, topics)
     with path.open("rb") as stream:
@@ -217,6 +233,82 @@ def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS
             for item in inner:
                 state.take(item)
     return recording
+
+
+def _read_indexed(path: Path, topics: Collection[str]) -> Recording | None:
+    """The recording read through its summary, or None when the file has no complete summary and
+    message indexes (a run cut short, another writer) or any part of it does not read."""
+    recording = Recording(path)
+    state = _ReadState(recording, topics)
+    try:
+        with path.open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is None or not summary.chunk_indexes \
+                    or not all(index.message_index_offsets for index in summary.chunk_indexes):
+                return None
+            for record in [*summary.schemas.values(), *summary.channels.values(), *reader.iter_metadata(),
+                           *reader.iter_attachments()]:
+                state.take(record)
+            for chunk_index in summary.chunk_indexes:
+                _take_chunk(stream, chunk_index, state)
+    except Exception:   # noqa: BLE001 - whatever does not read through the summary is read front to back
+        return None
+    return recording
+
+
+def _take_chunk(stream: BinaryIO, chunk_index: ChunkIndex, state: _ReadState) -> None:
+    """The statistics of every channel of the chunk and the messages of the wanted ones."""
+    recording = state.recording
+    wanted: dict[str, np.ndarray] = {}
+    for channel_id, index_offset in chunk_index.message_index_offsets.items():
+        topic = state.channel_topics[channel_id]
+        pairs = message_index_pairs(stream, index_offset)
+        if len(pairs):
+            recording.topics[topic].add_many(len(pairs), int(pairs[:, 0].min()), int(pairs[:, 0].max()))
+            if state.wanted(topic):
+                wanted[topic] = pairs
+    if not wanted:
+        return
+    records = chunk_records(stream, chunk_index)
+    for topic, pairs in wanted.items():
+        pairs = pairs[np.argsort(pairs[:, 1], kind="stable")]       # file order
+        offsets = pairs[:, 1].astype(np.int64)
+        recording.messages[topic] += zip(pairs[:, 0].tolist(), message_sequences(records, offsets).tolist(),
+                                         message_payloads(records, offsets))
+
+
+def chunk_records(stream: BinaryIO, chunk_index: ChunkIndex) -> bytes:
+    """The decompressed records of the chunk that `chunk_index` points to, its CRC checked."""
+    stream.seek(chunk_index.chunk_start_offset + RECORD_HEADER.size)
+    data_stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(stream)), validate_crc=True)
+    return data_stream.read(size)
+
+
+def message_index_pairs(stream: BinaryIO, index_offset: int) -> np.ndarray:
+    """(N, 2) (log time, offset in the chunk's records) of the messages a Message Index record lists."""
+    stream.seek(index_offset)
+    _opcode, _length, _channel, pairs_length = MESSAGE_INDEX_HEADER.unpack(stream.read(MESSAGE_INDEX_HEADER.size))
+    return np.frombuffer(stream.read(pairs_length), dtype="<u8").reshape(-1, 2)
+
+
+def _message_field(records: bytes, offsets: np.ndarray, start: int, dtype: str) -> np.ndarray:
+    """One fixed-size field, `start` bytes into each of the Message records at `offsets`."""
+    size = np.dtype(dtype).itemsize
+    as_bytes = np.frombuffer(records, dtype=np.uint8)
+    return as_bytes[offsets[:, None] + start + np.arange(size)].copy().view(dtype)[:, 0]
+
+
+def message_sequences(records: bytes, offsets: np.ndarray) -> np.ndarray:
+    """The sequence numbers of the Message records at `offsets` in a chunk's records."""
+    return _message_field(records, offsets, RECORD_HEADER.size + 2, "<u4")
+
+
+def message_payloads(records: bytes, offsets: np.ndarray) -> list[bytes]:
+    """The data of the Message records at `offsets` in a chunk's records."""
+    ends = offsets + RECORD_HEADER.size + _message_field(records, offsets, 1, "<u8").astype(np.int64)
+    starts = offsets + MESSAGE_HEADER.size
+    return [records[start:end] for start, end in zip(starts.tolist(), ends.tolist())]
 
 
 class _ReadState:
