@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import struct
-from collections.abc import Callable, Collection, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Collection, Iterator, Sequence
+from dataclasses import dataclass, field, fields
 from functools import partial
 from io import BytesIO
+from itertools import chain
+from operator import attrgetter
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Message, Metadata, Schema
@@ -29,7 +33,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_
 from datasets import codec, schemas
 from datasets.scoring import ScoringTruth
 from estimators.base import Estimate
-from sensors.samples import Sample
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
 from testbed.world.contact import FootContacts
@@ -139,37 +143,38 @@ class Recording:
         """Every sensor sample, in the order the run loop handed them to the estimator. Samples of
         a sensor plugin come back as instances of its sample class when that can be imported
         (and are left out otherwise: no estimator of this process could know them)."""
-        decoders = {topic: partial(codec.decode_sample, topic) for topic in schemas.SENSOR_TOPICS}
+        decoders = {topic: partial(_decode_samples, topic) for topic in schemas.SENSOR_TOPICS}
         for topic, metadata in self.channel_metadata.items():
             sample_class = _importable(metadata.get("sample_class"))
             if sample_class is not None:
-                decoders[topic] = partial(codec.decode_plugin_sample, sample_class)
-        tagged = [(sequence, log_ns, decoders[topic], data) for topic in decoders
-                  for log_ns, sequence, data in self.messages.get(topic, [])]
+                decoders[topic] = partial(_decode_each, partial(codec.decode_plugin_sample, sample_class))
+        tagged = []
+        for topic, decode in decoders.items():
+            entries = self.messages.get(topic, [])
+            if entries:
+                log_ns, sequences, payloads = zip(*entries)
+                tagged += zip(sequences, log_ns, decode(payloads))
         tagged.sort(key=lambda item: item[:2])     # the recorder numbers samples in handing order
-        return [decode(data) for _, _, decode, data in tagged]
+        return [sample for _, _, sample in tagged]
 
     def estimates(self) -> list[Estimate]:
         return self._decoded(schemas.ESTIMATE.name, codec.decode_estimate)
 
     def scoring_truth(self) -> ScoringTruth:
         """Per physics step truth for scoring: the steps that have both their pose and their feet."""
-        feet_by_ns = {log_ns: data for log_ns, _, data in self.messages.get(schemas.TRUTH_FEET.name, [])}
-        t, quaternions, positions, feet, contact = [], [], [], [], []
-        for log_ns, _, pose_data in self.messages.get(schemas.TRUTH_POSE.name, []):
-            feet_data = feet_by_ns.get(log_ns)
-            if feet_data is None:
-                continue
-            position, quaternion = codec.decode_pose(pose_data)
-            step_t, step_feet, step_contact = codec.decode_feet(feet_data)
-            t.append(step_t)
-            quaternions.append(quaternion)
-            positions.append(position)
-            feet.append(step_feet)
-            contact.append(step_contact)
-        return ScoringTruth(np.array(t, dtype=float), np.array(quaternions, dtype=float).reshape(-1, 4),
-                            np.array(positions, dtype=float).reshape(-1, 3),
-                            np.array(feet, dtype=float).reshape(-1, 6, 3), np.array(contact, dtype=bool).reshape(-1, 6))
+        feet_entries = self.messages.get(schemas.TRUTH_FEET.name, [])
+        feet_index = {log_ns: k for k, (log_ns, _, _) in enumerate(feet_entries)}
+        pose_entries = self.messages.get(schemas.TRUTH_POSE.name, [])
+        pairs = [(k, feet_index[log_ns]) for k, (log_ns, _, _) in enumerate(pose_entries) if log_ns in feet_index]
+        pose_rows, feet_rows = (list(rows) for rows in zip(*pairs)) if pairs else ([], [])
+        positions, quaternions = _decode_poses([pose_entries[k][2] for k in pose_rows])
+        feet = [schemas.FeetTruthMsg.FromString(feet_entries[k][2]) for k in feet_rows]
+        foot_positions = _repeated_column(feet, "foot_positions", float, (6, 3))
+        foot_contact = _repeated_column(feet, "foot_contact", bool, (6,))
+        if foot_positions is None or foot_contact is None:
+            raise UserError(f"{self.path}: its {schemas.TRUTH_FEET.name} messages do not hold six feet each")
+        return ScoringTruth(np.fromiter(map(attrgetter("t"), feet), dtype=float, count=len(feet)), quaternions,
+                            positions, foot_positions, foot_contact)
 
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t (N,) s, positions (N, 3), quaternions (N, 4)) of /truth/pose."""
@@ -194,6 +199,54 @@ class Recording:
     def terrain(self) -> codec.TerrainBoxes | None:
         entries = self.messages.get(schemas.TERRAIN.name, [])
         return codec.decode_terrain(entries[0][2]) if entries else None
+
+
+_SAMPLE_CLASSES = {schemas.IMU.name: ImuSample, schemas.ACCEL_ARRAY.name: AccelSample,
+                   schemas.ENCODERS.name: EncoderSample, schemas.FEET.name: FootSample}
+_MESSAGE_CLASSES = {topic.name: topic.message_class for topic in schemas.TOPICS}
+_ARRAY_DTYPES = {"double": float, "bool": bool}
+
+
+def _decode_each(decode: Callable[[bytes], Any], payloads: Sequence[bytes]) -> list:
+    return [decode(data) for data in payloads]
+
+
+def _decode_samples(topic: str, payloads: Sequence[bytes]) -> list[Sample]:
+    """The samples of a built-in sensor topic (`codec.decode_sample`'s samples), decoded field by
+    field over all the messages: each sample's arrays are rows of one array per field."""
+    message_class = _MESSAGE_CLASSES[topic]
+    messages = list(map(message_class.FromString, payloads))
+    columns = {}
+    for name, type_name, kind in schemas.MESSAGES[message_class.DESCRIPTOR.name]:
+        if kind == "one":
+            columns[name] = list(map(attrgetter(name), messages))
+            continue
+        width = len(getattr(messages[0], name)) if messages else 0
+        column = _repeated_column(messages, name, _ARRAY_DTYPES[type_name], (width,))
+        if column is None:        # rows of different lengths: no common array
+            return [codec.decode_sample(topic, data) for data in payloads]
+        columns[name] = column
+    sample_class = _SAMPLE_CLASSES[topic]
+    return list(map(sample_class, *(columns[field.name] for field in fields(sample_class))))
+
+
+def _repeated_column(messages: Sequence, name: str, dtype: type, shape: tuple[int, ...]) -> np.ndarray | None:
+    """(N, *shape) array of the repeated field `name` of N messages, or None unless they hold
+    prod(shape) values each."""
+    lengths = np.fromiter(map(len, map(attrgetter(name), messages)), dtype=np.int64, count=len(messages))
+    if np.any(lengths != math.prod(shape)):
+        return None
+    values = np.fromiter(chain.from_iterable(map(attrgetter(name), messages)), dtype=dtype, count=int(lengths.sum()))
+    return values.reshape(len(messages), *shape)
+
+
+def _decode_poses(payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (N, 3), quaternions x, y, z, w (N, 4)) of PoseInFrame messages."""
+    poses = [PoseInFrame.FromString(data).pose for data in payloads]
+    positions = np.array([(p.position.x, p.position.y, p.position.z) for p in poses], dtype=float).reshape(-1, 3)
+    quaternions = np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w) for p in poses],
+                           dtype=float).reshape(-1, 4)
+    return positions, quaternions
 
 
 def _importable(spec: str | None) -> type | None:
