@@ -44,8 +44,6 @@ from testbed.model.truth import Truth
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 ALL_TOPICS = None
-_RECORD_LENGTH = struct.Struct("<Q")
-_MESSAGE_HEADER = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
 # Record layouts of the MCAP specification (little-endian): every record starts with its opcode
 # and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
 # channel id, sequence, log and publish time, then the data.
@@ -242,11 +240,15 @@ def _repeated_column(messages: Sequence, name: str, dtype: type, shape: tuple[in
 
 def _decode_poses(payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
     """(positions (N, 3), quaternions x, y, z, w (N, 4)) of PoseInFrame messages."""
-    poses = [PoseInFrame.FromString(data).pose for data in payloads]
-    positions = np.array([(p.position.x, p.position.y, p.position.z) for p in poses], dtype=float).reshape(-1, 3)
-    quaternions = np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w) for p in poses],
-                           dtype=float).reshape(-1, 4)
-    return positions, quaternions
+    rows = np.array(list(map(_pose_row, payloads)), dtype=float).reshape(-1, 7)
+    return rows[:, :3].copy(), rows[:, 3:].copy()
+
+
+def _pose_row(data: bytes) -> tuple[float, ...]:
+    """x, y, z, qx, qy, qz, qw of a PoseInFrame."""
+    pose = PoseInFrame.FromString(data).pose
+    position, orientation = pose.position, pose.orientation
+    return position.x, position.y, position.z, orientation.x, orientation.y, orientation.z, orientation.w
 
 
 def _importable(spec: str | None) -> type | None:
@@ -408,15 +410,14 @@ def _chunk_records(chunk: Chunk) -> Iterator[Any]:
     data = stream.read(size)
     offset = 0
     while offset < size:
-        opcode = data[offset]
-        (length,) = _RECORD_LENGTH.unpack_from(data, offset + 1)
-        body = offset + 9
+        opcode, length = RECORD_HEADER.unpack_from(data, offset)
+        body = offset + RECORD_HEADER.size
         if body + length > size:
             raise ValueError("a chunk record runs past the end of its chunk")
         if opcode == Opcode.MESSAGE:
-            channel_id, sequence, log_time, publish_time = _MESSAGE_HEADER.unpack_from(data, body)
-            yield Message(channel_id=channel_id, log_time=log_time, data=data[body + _MESSAGE_HEADER.size:body + length],
-                          publish_time=publish_time, sequence=sequence)
+            _, _, channel_id, sequence, log_time, publish_time = MESSAGE_HEADER.unpack_from(data, offset)
+            yield Message(channel_id=channel_id, log_time=log_time, publish_time=publish_time, sequence=sequence,
+                          data=data[offset + MESSAGE_HEADER.size:body + length])
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
             record_stream = ReadDataStream(BytesIO(data[body:body + length]))
             yield (Schema if opcode == Opcode.SCHEMA else Channel).read(record_stream)

@@ -176,7 +176,8 @@ def support_planes(points: np.ndarray) -> np.ndarray:
     spread = np.flatnonzero(np.sqrt(np.maximum(smallest_variance, 0.0)) >= MIN_FOOT_SPREAD)
     design = np.concatenate([points[spread, :, :2], np.ones((len(spread), points.shape[1], 1))], axis=2)
     normal_matrix = np.einsum("nki,nkj->nij", design, design)
-    planes[spread] = np.linalg.solve(normal_matrix, np.einsum("nki,nk->ni", design, points[spread, :, 2])[..., None])[..., 0]
+    moments = np.einsum("nki,nk->ni", design, points[spread, :, 2])
+    planes[spread] = np.linalg.solve(normal_matrix, moments[..., None])[..., 0]
     return planes
 
 
