@@ -30,7 +30,6 @@ values over all the messages become columns at once.
 from __future__ import annotations
 
 import json
-import struct
 from dataclasses import dataclass
 from functools import cached_property
 from itertools import chain
@@ -43,9 +42,10 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
-from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
+from mcap.stream_reader import breakup_chunk
 
 from datasets import schemas
+from datasets.reader import RECORD_HEADER, chunk_records, message_index_pairs, message_payloads
 from testbed.model.errors import ConfigError, UserError
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
@@ -83,12 +83,6 @@ FOXGLOVE_FIELDS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
 }
 NS_PER_S = 1_000_000_000
 _DTYPES = {"double": float, "bool": bool, "uint32": np.int64}
-# Record layouts of the MCAP specification (little-endian): every record starts with its opcode
-# and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
-# channel id, sequence, log and publish time, then the data.
-RECORD_HEADER = struct.Struct("<BQ")
-MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
-MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 
 
 @dataclass(frozen=True)
@@ -177,33 +171,14 @@ class Dataset:
                 index_offset = chunk_index.message_index_offsets.get(channel.id)
                 if index_offset is None and chunk_index.message_index_offsets:
                     continue        # indexed, without this channel
-                stream.seek(chunk_index.chunk_start_offset + RECORD_HEADER.size)
-                chunk = Chunk.read(ReadDataStream(stream))
                 if index_offset is None:
-                    payloads += [record.data for record in breakup_chunk(chunk)
+                    stream.seek(chunk_index.chunk_start_offset + RECORD_HEADER.size)
+                    payloads += [record.data for record in breakup_chunk(Chunk.read(ReadDataStream(stream)))
                                  if isinstance(record, Message) and record.channel_id == channel.id]
                     continue
-                data_stream, size = get_chunk_data_stream(chunk)
-                payloads += _message_data(data_stream.read(size), _message_offsets(stream, index_offset))
+                offsets = message_index_pairs(stream, index_offset)[:, 1].astype(np.int64)
+                payloads += message_payloads(chunk_records(stream, chunk_index), offsets)
         return payloads
-
-
-
-def _message_offsets(stream, index_offset: int) -> np.ndarray:
-    """The offsets in their chunk of the messages that a Message Index record lists."""
-    stream.seek(index_offset)
-    _opcode, _length, _channel, pairs_length = MESSAGE_INDEX_HEADER.unpack(stream.read(MESSAGE_INDEX_HEADER.size))
-    pairs = np.frombuffer(stream.read(pairs_length), dtype="<u8").reshape(-1, 2)
-    return pairs[:, 1].astype(np.int64)
-
-
-def _message_data(records: bytes, offsets: np.ndarray) -> list[bytes]:
-    """The data of the Message records at `offsets` in a chunk's records."""
-    as_bytes = np.frombuffer(records, dtype=np.uint8)
-    length_bytes = as_bytes[offsets[:, None] + 1 + np.arange(8)]
-    ends = offsets + RECORD_HEADER.size + length_bytes.copy().view("<u8")[:, 0].astype(np.int64)
-    starts = offsets + MESSAGE_HEADER.size
-    return [records[start:end] for start, end in zip(starts.tolist(), ends.tolist())]
 
 
 def _columns(message_class: type, payloads: list[bytes]) -> dict[str, np.ndarray]:

@@ -10,17 +10,22 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import struct
-from collections.abc import Callable, Collection, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Collection, Iterator, Sequence
+from dataclasses import dataclass, field, fields
 from functools import partial
 from io import BytesIO
+from itertools import chain
+from operator import attrgetter
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from mcap.exceptions import EndOfFile
-from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Message, Metadata, Schema
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
@@ -28,7 +33,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_
 from datasets import codec, schemas
 from datasets.scoring import ScoringTruth
 from estimators.base import Estimate
-from sensors.samples import Sample
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
 from testbed.world.contact import FootContacts
@@ -39,8 +44,12 @@ from testbed.model.truth import Truth
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 ALL_TOPICS = None
-_RECORD_LENGTH = struct.Struct("<Q")
-_MESSAGE_HEADER = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
+# Record layouts of the MCAP specification (little-endian): every record starts with its opcode
+# and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
+# channel id, sequence, log and publish time, then the data.
+RECORD_HEADER = struct.Struct("<BQ")
+MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
+MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 
 
 @dataclass
@@ -51,9 +60,12 @@ class TopicStats:
     last_ns: int | None = None
 
     def add(self, log_ns: int) -> None:
-        self.count += 1
-        self.first_ns = log_ns if self.first_ns is None else min(self.first_ns, log_ns)
-        self.last_ns = log_ns if self.last_ns is None else max(self.last_ns, log_ns)
+        self.add_many(1, log_ns, log_ns)
+
+    def add_many(self, count: int, first_ns: int, last_ns: int) -> None:
+        self.count += count
+        self.first_ns = first_ns if self.first_ns is None else min(self.first_ns, first_ns)
+        self.last_ns = last_ns if self.last_ns is None else max(self.last_ns, last_ns)
 
     @property
     def rate_hz(self) -> float | None:
@@ -129,37 +141,38 @@ class Recording:
         """Every sensor sample, in the order the run loop handed them to the estimator. Samples of
         a sensor plugin come back as instances of its sample class when that can be imported
         (and are left out otherwise: no estimator of this process could know them)."""
-        decoders = {topic: partial(codec.decode_sample, topic) for topic in schemas.SENSOR_TOPICS}
+        decoders = {topic: partial(_decode_samples, topic) for topic in schemas.SENSOR_TOPICS}
         for topic, metadata in self.channel_metadata.items():
             sample_class = _importable(metadata.get("sample_class"))
             if sample_class is not None:
-                decoders[topic] = partial(codec.decode_plugin_sample, sample_class)
-        tagged = [(sequence, log_ns, decoders[topic], data) for topic in decoders
-                  for log_ns, sequence, data in self.messages.get(topic, [])]
+                decoders[topic] = partial(_decode_each, partial(codec.decode_plugin_sample, sample_class))
+        tagged = []
+        for topic, decode in decoders.items():
+            entries = self.messages.get(topic, [])
+            if entries:
+                log_ns, sequences, payloads = zip(*entries)
+                tagged += zip(sequences, log_ns, decode(payloads))
         tagged.sort(key=lambda item: item[:2])     # the recorder numbers samples in handing order
-        return [decode(data) for _, _, decode, data in tagged]
+        return [sample for _, _, sample in tagged]
 
     def estimates(self) -> list[Estimate]:
         return self._decoded(schemas.ESTIMATE.name, codec.decode_estimate)
 
     def scoring_truth(self) -> ScoringTruth:
         """Per physics step truth for scoring: the steps that have both their pose and their feet."""
-        feet_by_ns = {log_ns: data for log_ns, _, data in self.messages.get(schemas.TRUTH_FEET.name, [])}
-        t, quaternions, positions, feet, contact = [], [], [], [], []
-        for log_ns, _, pose_data in self.messages.get(schemas.TRUTH_POSE.name, []):
-            feet_data = feet_by_ns.get(log_ns)
-            if feet_data is None:
-                continue
-            position, quaternion = codec.decode_pose(pose_data)
-            step_t, step_feet, step_contact = codec.decode_feet(feet_data)
-            t.append(step_t)
-            quaternions.append(quaternion)
-            positions.append(position)
-            feet.append(step_feet)
-            contact.append(step_contact)
-        return ScoringTruth(np.array(t, dtype=float), np.array(quaternions, dtype=float).reshape(-1, 4),
-                            np.array(positions, dtype=float).reshape(-1, 3),
-                            np.array(feet, dtype=float).reshape(-1, 6, 3), np.array(contact, dtype=bool).reshape(-1, 6))
+        feet_entries = self.messages.get(schemas.TRUTH_FEET.name, [])
+        feet_index = {log_ns: k for k, (log_ns, _, _) in enumerate(feet_entries)}
+        pose_entries = self.messages.get(schemas.TRUTH_POSE.name, [])
+        pairs = [(k, feet_index[log_ns]) for k, (log_ns, _, _) in enumerate(pose_entries) if log_ns in feet_index]
+        pose_rows, feet_rows = (list(rows) for rows in zip(*pairs)) if pairs else ([], [])
+        positions, quaternions = _decode_poses([pose_entries[k][2] for k in pose_rows])
+        feet = [schemas.FeetTruthMsg.FromString(feet_entries[k][2]) for k in feet_rows]
+        foot_positions = _repeated_column(feet, "foot_positions", float, (6, 3))
+        foot_contact = _repeated_column(feet, "foot_contact", bool, (6,))
+        if foot_positions is None or foot_contact is None:
+            raise UserError(f"{self.path}: its {schemas.TRUTH_FEET.name} messages do not hold six feet each")
+        return ScoringTruth(np.fromiter(map(attrgetter("t"), feet), dtype=float, count=len(feet)), quaternions,
+                            positions, foot_positions, foot_contact)
 
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t (N,) s, positions (N, 3), quaternions (N, 4)) of /truth/pose."""
@@ -186,6 +199,58 @@ class Recording:
         return codec.decode_terrain(entries[0][2]) if entries else None
 
 
+_SAMPLE_CLASSES = {schemas.IMU.name: ImuSample, schemas.ACCEL_ARRAY.name: AccelSample,
+                   schemas.ENCODERS.name: EncoderSample, schemas.FEET.name: FootSample}
+_MESSAGE_CLASSES = {topic.name: topic.message_class for topic in schemas.TOPICS}
+_ARRAY_DTYPES = {"double": float, "bool": bool}
+
+
+def _decode_each(decode: Callable[[bytes], Any], payloads: Sequence[bytes]) -> list:
+    return [decode(data) for data in payloads]
+
+
+def _decode_samples(topic: str, payloads: Sequence[bytes]) -> list[Sample]:
+    """The samples of a built-in sensor topic (`codec.decode_sample`'s samples), decoded field by
+    field over all the messages: each sample's arrays are rows of one array per field."""
+    message_class = _MESSAGE_CLASSES[topic]
+    messages = list(map(message_class.FromString, payloads))
+    columns = {}
+    for name, type_name, kind in schemas.MESSAGES[message_class.DESCRIPTOR.name]:
+        if kind == "one":
+            columns[name] = list(map(attrgetter(name), messages))
+            continue
+        width = len(getattr(messages[0], name)) if messages else 0
+        column = _repeated_column(messages, name, _ARRAY_DTYPES[type_name], (width,))
+        if column is None:        # rows of different lengths: no common array
+            return [codec.decode_sample(topic, data) for data in payloads]
+        columns[name] = column
+    sample_class = _SAMPLE_CLASSES[topic]
+    return list(map(sample_class, *(columns[field.name] for field in fields(sample_class))))
+
+
+def _repeated_column(messages: Sequence, name: str, dtype: type, shape: tuple[int, ...]) -> np.ndarray | None:
+    """(N, *shape) array of the repeated field `name` of N messages, or None unless they hold
+    prod(shape) values each."""
+    lengths = np.fromiter(map(len, map(attrgetter(name), messages)), dtype=np.int64, count=len(messages))
+    if np.any(lengths != math.prod(shape)):
+        return None
+    values = np.fromiter(chain.from_iterable(map(attrgetter(name), messages)), dtype=dtype, count=int(lengths.sum()))
+    return values.reshape(len(messages), *shape)
+
+
+def _decode_poses(payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (N, 3), quaternions x, y, z, w (N, 4)) of PoseInFrame messages."""
+    rows = np.array(list(map(_pose_row, payloads)), dtype=float).reshape(-1, 7)
+    return rows[:, :3].copy(), rows[:, 3:].copy()
+
+
+def _pose_row(data: bytes) -> tuple[float, ...]:
+    """x, y, z, qx, qy, qz, qw of a PoseInFrame."""
+    pose = PoseInFrame.FromString(data).pose
+    position, orientation = pose.position, pose.orientation
+    return position.x, position.y, position.z, orientation.x, orientation.y, orientation.z, orientation.w
+
+
 def _importable(spec: str | None) -> type | None:
     """The class named MODULE:CLASS, or None when it cannot be imported."""
     if not spec or ":" not in spec:
@@ -199,9 +264,15 @@ def _importable(spec: str | None) -> type | None:
 
 def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS) -> Recording:
     """Everything readable in the file; the payloads of `topics` only (all when None; a name
-    ending in '/' takes every topic under it)."""
+    ending in '/' takes every topic under it). With a few topics of a complete file, only the
+    chunks that hold them are decompressed and only their messages sliced out (through the file's
+    summary and message indexes); a file without a usable summary is read front to back."""
     path = Path(path)
     _check_is_mcap(path)
+    if topics is not ALL_TOPICS:
+        recording = _read_indexed(path, topics)
+        if recording is not None:
+            return recording
     recording = Recording(path)
     state = _ReadState(recording, topics)
     with path.open("rb") as stream:
@@ -217,6 +288,82 @@ def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS
             for item in inner:
                 state.take(item)
     return recording
+
+
+def _read_indexed(path: Path, topics: Collection[str]) -> Recording | None:
+    """The recording read through its summary, or None when the file has no complete summary and
+    message indexes (a run cut short, another writer) or any part of it does not read."""
+    recording = Recording(path)
+    state = _ReadState(recording, topics)
+    try:
+        with path.open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is None or not summary.chunk_indexes \
+                    or not all(index.message_index_offsets for index in summary.chunk_indexes):
+                return None
+            for record in [*summary.schemas.values(), *summary.channels.values(), *reader.iter_metadata(),
+                           *reader.iter_attachments()]:
+                state.take(record)
+            for chunk_index in summary.chunk_indexes:
+                _take_chunk(stream, chunk_index, state)
+    except Exception:   # noqa: BLE001 - whatever does not read through the summary is read front to back
+        return None
+    return recording
+
+
+def _take_chunk(stream: BinaryIO, chunk_index: ChunkIndex, state: _ReadState) -> None:
+    """The statistics of every channel of the chunk and the messages of the wanted ones."""
+    recording = state.recording
+    wanted: dict[str, np.ndarray] = {}
+    for channel_id, index_offset in chunk_index.message_index_offsets.items():
+        topic = state.channel_topics[channel_id]
+        pairs = message_index_pairs(stream, index_offset)
+        if len(pairs):
+            recording.topics[topic].add_many(len(pairs), int(pairs[:, 0].min()), int(pairs[:, 0].max()))
+            if state.wanted(topic):
+                wanted[topic] = pairs
+    if not wanted:
+        return
+    records = chunk_records(stream, chunk_index)
+    for topic, pairs in wanted.items():
+        pairs = pairs[np.argsort(pairs[:, 1], kind="stable")]       # file order
+        offsets = pairs[:, 1].astype(np.int64)
+        recording.messages[topic] += zip(pairs[:, 0].tolist(), message_sequences(records, offsets).tolist(),
+                                         message_payloads(records, offsets))
+
+
+def chunk_records(stream: BinaryIO, chunk_index: ChunkIndex) -> bytes:
+    """The decompressed records of the chunk that `chunk_index` points to, its CRC checked."""
+    stream.seek(chunk_index.chunk_start_offset + RECORD_HEADER.size)
+    data_stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(stream)), validate_crc=True)
+    return data_stream.read(size)
+
+
+def message_index_pairs(stream: BinaryIO, index_offset: int) -> np.ndarray:
+    """(N, 2) (log time, offset in the chunk's records) of the messages a Message Index record lists."""
+    stream.seek(index_offset)
+    _opcode, _length, _channel, pairs_length = MESSAGE_INDEX_HEADER.unpack(stream.read(MESSAGE_INDEX_HEADER.size))
+    return np.frombuffer(stream.read(pairs_length), dtype="<u8").reshape(-1, 2)
+
+
+def _message_field(records: bytes, offsets: np.ndarray, start: int, dtype: str) -> np.ndarray:
+    """One fixed-size field, `start` bytes into each of the Message records at `offsets`."""
+    size = np.dtype(dtype).itemsize
+    as_bytes = np.frombuffer(records, dtype=np.uint8)
+    return as_bytes[offsets[:, None] + start + np.arange(size)].copy().view(dtype)[:, 0]
+
+
+def message_sequences(records: bytes, offsets: np.ndarray) -> np.ndarray:
+    """The sequence numbers of the Message records at `offsets` in a chunk's records."""
+    return _message_field(records, offsets, RECORD_HEADER.size + 2, "<u4")
+
+
+def message_payloads(records: bytes, offsets: np.ndarray) -> list[bytes]:
+    """The data of the Message records at `offsets` in a chunk's records."""
+    ends = offsets + RECORD_HEADER.size + _message_field(records, offsets, 1, "<u8").astype(np.int64)
+    starts = offsets + MESSAGE_HEADER.size
+    return [records[start:end] for start, end in zip(starts.tolist(), ends.tolist())]
 
 
 class _ReadState:
@@ -263,15 +410,14 @@ def _chunk_records(chunk: Chunk) -> Iterator[Any]:
     data = stream.read(size)
     offset = 0
     while offset < size:
-        opcode = data[offset]
-        (length,) = _RECORD_LENGTH.unpack_from(data, offset + 1)
-        body = offset + 9
+        opcode, length = RECORD_HEADER.unpack_from(data, offset)
+        body = offset + RECORD_HEADER.size
         if body + length > size:
             raise ValueError("a chunk record runs past the end of its chunk")
         if opcode == Opcode.MESSAGE:
-            channel_id, sequence, log_time, publish_time = _MESSAGE_HEADER.unpack_from(data, body)
-            yield Message(channel_id=channel_id, log_time=log_time, data=data[body + _MESSAGE_HEADER.size:body + length],
-                          publish_time=publish_time, sequence=sequence)
+            _, _, channel_id, sequence, log_time, publish_time = MESSAGE_HEADER.unpack_from(data, offset)
+            yield Message(channel_id=channel_id, log_time=log_time, publish_time=publish_time, sequence=sequence,
+                          data=data[offset + MESSAGE_HEADER.size:body + length])
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
             record_stream = ReadDataStream(BytesIO(data[body:body + length]))
             yield (Schema if opcode == Opcode.SCHEMA else Channel).read(record_stream)

@@ -108,9 +108,4 @@ def imu_position(config) -> np.ndarray:
 
 def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
     """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
-    estimates = []
-    for sample in samples:
-        estimate = estimator.update(sample)
-        if estimate is not None:
-            estimates.append(estimate)
-    return estimates
+    return [estimate for estimate in map(estimator.update, samples) if estimate is not None]

@@ -24,10 +24,12 @@ from estimators.base import Estimate, Estimator, imu_rotation
 from estimators.config import MadgwickConfig, MahonyConfig, VqfConfig
 
 TINY_RATE = np.array([1e-12, 0.0, 0.0])    # rad/s, stands in for an exactly-zero gyro reading
+NO_ACCEL = np.zeros(3)                     # m/s^2, VQF skips all-zero accelerometer samples
+IDENTITY = np.eye(3)
 
 
 def scalar_last(q_wxyz: np.ndarray) -> rot.Quaternion:
-    w, x, y, z = (float(v) for v in q_wxyz)
+    w, x, y, z = np.asarray(q_wxyz, dtype=float).tolist()
     return rot.normalized((x, y, z, w))
 
 
@@ -117,7 +119,7 @@ class VqfEstimator(Estimator):
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         if gyro is None:
             return None
-        accel = np.zeros(3) if accel is None else accel     # VQF skips all-zero accelerometer samples
+        accel = NO_ACCEL if accel is None else accel
         if self.filter is None:
             if self._first is None or t <= self._first[0]:
                 self._first = (t, gyro, accel)
@@ -130,4 +132,4 @@ class VqfEstimator(Estimator):
         self.filter.update(np.ascontiguousarray(gyro), np.ascontiguousarray(accel))
         bias, sigma = self.filter.getBiasEstimate()
         return attitude_estimate(t, scalar_last(self.filter.getQuat6D()), np.array(bias, dtype=float),
-                                 sigma**2 * np.eye(3))
+                                 sigma**2 * IDENTITY)

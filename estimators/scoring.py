@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
 from estimators.base import Estimate
-from estimators.terrain import fit_plane, heading_terrain_angles, slopes_and_height
+from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
 
 METRIC_KEYS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
@@ -143,20 +143,50 @@ def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarr
                         min_force: float = 0.0) -> TerrainTruth:
     """Terrain truth with the estimators' definition: the least-squares plane through the centres of
     the feet in contact (and, given the true normal forces, carrying at least `min_force`, as the
-    estimators' planted feet), lowered by the foot radius; angles in the true heading frame."""
+    estimators' planted feet), lowered by the foot radius; angles in the true heading frame.
+    As `estimators.terrain.fit_plane`, fewer than three feet, or feet closer than MIN_FOOT_SPREAD
+    to a line, give no plane (NaN). The steps are fitted in groups that share a support pattern."""
     yaw = roll_pitch_yaw(body_rotation)[:, 2]
     support = np.asarray(contact, dtype=bool)
     if normal_forces is not None:
         support = support & (np.asarray(normal_forces) >= min_force)
-    out = np.full((len(t), 3), np.nan)
-    for k in range(len(t)):
-        fit = fit_plane(feet_world[k][support[k]] - body_position[k], 0.0)
-        if fit is None:
-            continue
-        (a, b, height), _ = slopes_and_height(fit, foot_radius)
-        roll, pitch, _ = heading_terrain_angles(a, b, yaw[k])
-        out[k] = roll, pitch, height
-    return TerrainTruth(np.asarray(t, dtype=float), out[:, 0], out[:, 1], out[:, 2])
+    feet = np.asarray(feet_world, dtype=float) - np.asarray(body_position, dtype=float)[:, None, :]
+    coefficients = np.full((len(t), 3), np.nan)
+    patterns = support @ (1 << np.arange(support.shape[1]))
+    for pattern in np.unique(patterns):
+        steps = np.flatnonzero(patterns == pattern)
+        coefficients[steps] = support_planes(feet[steps][:, support[steps[0]]])
+    a, b, c = coefficients.T
+    height = -c / np.sqrt(1.0 + a * a + b * b) + foot_radius
+    roll, pitch = heading_terrain_tilt(a, b, yaw)
+    return TerrainTruth(np.asarray(t, dtype=float), roll, pitch, height)
+
+
+def support_planes(points: np.ndarray) -> np.ndarray:
+    """(N, 3) coefficients (a, b, c) of the least-squares planes z = a x + b y + c through each of
+    N sets of M points (N, M, 3); NaN where M < 3 or the points' smallest spread (the smaller
+    principal standard deviation of their x, y) is below MIN_FOOT_SPREAD."""
+    planes = np.full((len(points), 3), np.nan)
+    if points.shape[1] < 3:
+        return planes
+    xy = points[:, :, :2] - points[:, :, :2].mean(axis=1, keepdims=True)
+    scatter = np.einsum("nki,nkj->nij", xy, xy) / points.shape[1]
+    sxx, syy, sxy = scatter[:, 0, 0], scatter[:, 1, 1], scatter[:, 0, 1]
+    smallest_variance = 0.5 * (sxx + syy) - np.hypot(0.5 * (sxx - syy), sxy)
+    spread = np.flatnonzero(np.sqrt(np.maximum(smallest_variance, 0.0)) >= MIN_FOOT_SPREAD)
+    design = np.concatenate([points[spread, :, :2], np.ones((len(spread), points.shape[1], 1))], axis=2)
+    normal_matrix = np.einsum("nki,nkj->nij", design, design)
+    moments = np.einsum("nki,nk->ni", design, points[spread, :, 2])
+    planes[spread] = np.linalg.solve(normal_matrix, moments[..., None])[..., 0]
+    return planes
+
+
+def heading_terrain_tilt(a: np.ndarray, b: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Terrain (roll, pitch) of planes z = a x + b y + c seen from headings `yaw`: the angles of
+    `estimators.terrain.heading_terrain_angles`, for arrays."""
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    a_h, b_h = a * cy + b * sy, -a * sy + b * cy
+    return np.arcsin(b_h / np.sqrt(1.0 + a_h * a_h + b_h * b_h)), np.arctan(-a_h)
 
 
 def anees_bounds(runs: int, dof: int = 2, probability: float = 0.95) -> tuple[float, float]:

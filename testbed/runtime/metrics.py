@@ -15,6 +15,7 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
+from estimators.scoring import METRIC_KEYS, estimate_arrays, score, support_plane_truth
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
 from testbed.world.terrain import Terrain
@@ -129,7 +130,6 @@ def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.nd
     both call, so a replay of the same estimates scores bit for bit the same. All None when there
     is nothing to score: no estimator, no estimate, fewer than two truth steps, or a run shorter
     than the skipped first second."""
-    from estimators.scoring import METRIC_KEYS, estimate_arrays, score, support_plane_truth
     if config.run.estimator == "none" or not estimates or len(truth_t) < 2:
         return {key: None for key in METRIC_KEYS}
     rotations = Rotation.from_quat(truth_quaternion).as_matrix()

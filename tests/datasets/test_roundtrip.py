@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from datasets import schemas
-from datasets.reader import read_description, read_recording
+from datasets import codec
+from datasets.reader import REPLAY_TOPICS, read_description, read_recording
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample
 from tests.datasets.conftest import record, run_rerun
 from tests.datasets.ticks import generate_ticks, synthetic_config
@@ -221,3 +222,25 @@ def test_mcap_reader_decodes_every_message_by_the_schemas_in_the_file(ekf_run):
     for (_, proto), tick in zip(decoded[schemas.COMMAND.name], heavy):
         np.testing.assert_allclose(proto.joint_targets, tick.command.joint_targets, rtol=0, atol=0)
         np.testing.assert_array_equal(proto.swinging, tick.command.swinging)
+
+
+def test_reading_a_few_topics_through_the_index_equals_reading_the_whole_file(ekf_run):
+    _, _, path = ekf_run
+    indexed, whole = read_recording(path, topics=REPLAY_TOPICS), read_recording(path)
+    assert indexed.topics == whole.topics and indexed.metadata == whole.metadata
+    assert indexed.attachments == whole.attachments and indexed.channel_metadata == whole.channel_metadata
+    assert indexed.truncated is None and set(indexed.messages) == set(whole.messages)
+    for topic, entries in indexed.messages.items():
+        wanted = topic.startswith(schemas.SENSOR_PREFIX) or topic in REPLAY_TOPICS
+        assert entries == (whole.messages[topic] if wanted else []), topic
+
+
+def test_samples_decoded_field_by_field_equal_the_per_message_decoder(ekf_run):
+    _, _, path = ekf_run
+    recording = read_recording(path, topics=REPLAY_TOPICS)
+    tagged = sorted((sequence, log_ns, codec.decode_sample(topic, data)) for topic in schemas.SENSOR_TOPICS
+                    for log_ns, sequence, data in recording.messages.get(topic, []))
+    read = recording.samples()
+    assert len(read) == len(tagged)
+    for sample, (_, _, expected) in zip(read, tagged):
+        assert_same_sample(sample, expected)

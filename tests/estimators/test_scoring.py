@@ -6,7 +6,8 @@ from scipy.spatial.transform import Rotation
 
 from estimators.base import Estimate
 from estimators.scoring import (METRIC_KEYS, EstimateArrays, TerrainTruth, anees_bounds, estimate_arrays,
-                                roll_pitch_yaw, score)
+                                roll_pitch_yaw, score, support_plane_truth)
+from estimators.terrain import fit_plane, heading_terrain_angles, slopes_and_height
 
 T = np.arange(3000) / 1000.0
 ROLL = 0.1 * np.sin(2 * np.pi * T)
@@ -80,3 +81,33 @@ def test_anees_bounds_of_the_issue():
 def test_nothing_to_score_is_an_error():
     with pytest.raises(ValueError, match="no estimate after the first 5.0 s"):
         score(arrays(ROLL, PITCH), T, TRUTH, skip=5.0)
+
+
+def per_step_support_planes(feet_world, support, body_position, yaw, foot_radius) -> np.ndarray:
+    """(roll, pitch, height) per step, one plane fit at a time with the estimators' functions."""
+    out = np.full((len(yaw), 3), np.nan)
+    for k in range(len(yaw)):
+        fit = fit_plane(feet_world[k][support[k]] - body_position[k], 0.0)
+        if fit is not None:
+            (a, b, height), _ = slopes_and_height(fit, foot_radius)
+            out[k] = *heading_terrain_angles(a, b, yaw[k])[:2], height
+    return out
+
+
+def test_support_plane_truth_equals_a_per_step_fit():
+    random = np.random.default_rng(7)
+    steps = 400
+    rotations = Rotation.from_euler("ZYX", random.uniform(-0.3, 0.3, (steps, 3)) * [10, 1, 1]).as_matrix()
+    body_position = random.normal(0.0, 1.0, (steps, 3))
+    feet_world = body_position[:, None, :] + random.normal([0.0, 0.0, -0.1], 0.15, (steps, 6, 3))
+    feet_world[:5, :, 1] = body_position[:5, None, 1] + 0.001 * np.arange(6)    # collinear: no plane
+    contact = random.random((steps, 6)) < 0.6
+    forces = random.uniform(0.0, 10.0, (steps, 6))
+    yaw = Rotation.from_matrix(rotations).as_euler("ZYX")[:, 0]
+    truth = support_plane_truth(np.arange(steps) * 1e-3, feet_world, contact, body_position, rotations, 0.02,
+                                normal_forces=forces, min_force=2.0)
+    expected = per_step_support_planes(feet_world, contact & (forces >= 2.0), body_position, yaw, 0.02)
+    actual = np.column_stack([truth.terrain_roll, truth.terrain_pitch, truth.body_height])
+    assert np.array_equal(np.isnan(actual), np.isnan(expected)) and np.isfinite(expected).any()
+    assert np.isnan(expected[:5]).all() and np.isnan(expected).any(axis=1).sum() > 5
+    np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-12)
