@@ -3,7 +3,7 @@
 A live run scores with `testbed.runtime.metrics.score_estimates` from the truth of every physics step
 (time, body quaternion and position, foot centres and contacts). The recorder writes exactly those
 numbers, losslessly, at every step (`/truth/pose` and `/truth/feet`), so a replay that calls the
-same function on them reproduces the live metrics bit for bit.
+same function on them reproduces the live metrics exactly (same numbers, same operations).
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class RunMetrics:
             self.start_xy = truth.body_position[:2].copy()
             self.start_heading = float(np.arctan2(truth.body_rotation[1, 0], truth.body_rotation[0, 0]))
         if t >= self.window_start:
-            # Six numbers: Python's sum adds them in numpy's order, for a fifth of the cost.
+            # Six numbers: a Python sum is cheaper than numpy's per call.
             self._normal_sum += sum(tick.contacts.normal_forces.tolist())
             self._normal_count += 1
         if t >= SETTLE_TIME and tick.stability_margin < self.min_margin:
@@ -127,7 +127,7 @@ def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:
 def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,
                     feet: np.ndarray, contact: np.ndarray, estimates: list) -> dict:
     """Estimator metrics of a run from recorded numbers: the one function live runs and replays
-    both call, so a replay of the same estimates scores bit for bit the same. All None when there
+    both call, so a replay of the same estimates scores exactly the same. All None when there
     is nothing to score: no estimator, no estimate, fewer than two truth steps, or a run shorter
     than the skipped first second."""
     if config.run.estimator == "none" or not estimates or len(truth_t) < 2:
