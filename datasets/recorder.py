@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 from datasets import codec, schemas
 from datasets.signals import sigint_deferred
-from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, Message, WriterFailed, WriterProcess, partial_path_of
+from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, WriterFailed, WriterProcess, partial_path_of
 from testbed.runtime.parts import part_sources
 from testbed.runtime.recording import Tick
 
@@ -55,11 +55,9 @@ class McapRecorder:
         self.flush_period = flush_period
         self.busy_s = 0.0               # wall time spent inside the recorder
         self._dataset: WriterProcess | None = None
-        self._encoder = codec.Encoder()
-        self._channels: dict[str, int] = {}
-        self._pending: list[Message] = []       # serialised, not yet written
-        self._ticks = 0
-        self._samples = 0               # sensor samples so far: the next one's sequence number
+        self._pending: list[Tick] = []          # not handed over yet
+        self._ticks = 0                 # ticks handed over
+        self._samples = 0               # sensor samples handed over: the next one's sequence number
         self._every = 1
         self._next_flush_ns = 0
         self._last_t = 0.0
@@ -79,25 +77,19 @@ class McapRecorder:
         started = time.perf_counter()
         self._every = truth_every(config.run.time_step, self.truth_rate)
         self._dataset = WriterProcess(self.path, run_description(config, self._every, self.truth_rate), config, urdf)
-        self._channels = self._dataset.channels
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
-        self._dataset.write([(self._channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
+        self._dataset.write([(self._dataset.channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
         self._next_flush_ns = codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        t = tick.truth.t
-        messages = self._messages(tick, self._ticks % self._every == 0)
-        # Added whole or not at all: a Ctrl-C while serialising drops only this tick.
-        self._pending += messages
-        self._samples += len(tick.samples)
-        self._ticks += 1
-        self._last_t = t
+        self._pending.append(tick)
+        self._last_t = t = tick.truth.t
         t_ns = codec.to_ns(t)
         if t_ns >= self._next_flush_ns:
-            self._write_pending(flush=True)
+            self._hand_over(flush=True)
             self._next_flush_ns = t_ns + codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 
@@ -107,49 +99,27 @@ class McapRecorder:
             return
         started = time.perf_counter()
         try:
-            self._write_pending(flush=False)
+            self._hand_over(flush=False)
         finally:
-            outcome = {"error": error or "", "ticks": str(self._ticks), "sim_time_s": repr(self._last_t),
+            ticks = self._ticks + len(self._pending)
+            outcome = {"error": error or "", "ticks": str(ticks), "sim_time_s": repr(self._last_t),
                        "recording_wall_s": repr(self.busy_s + time.perf_counter() - started)}
             self._dataset.close(metrics, outcome)
 
     # --- internals ----------------------------------------------------------------------------
 
-    def _messages(self, tick: Tick, heavy: bool) -> list[Message]:
-        """The tick's messages in file order: its samples (numbered on from the samples before
-        them), estimates, pose and feet, then with `heavy` its transform, state, contacts, support
-        and command."""
-        channels, encoder, to_ns = self._channels, self._encoder, codec.to_ns
-        truth = tick.truth
-        t_ns = to_ns(truth.t)
-        messages: list[Message] = []
-        sequence = self._samples
-        for sample in tick.samples:
-            topic, data = encoder.sample(sample)
-            messages.append((channels[topic], to_ns(sample.t), data, sequence))
-            sequence += 1
-        estimate_channel = channels[schemas.ESTIMATE.name]
-        for estimate in tick.estimates:
-            messages.append((estimate_channel, to_ns(estimate.t), encoder.estimate(estimate), 0))
-        messages += ((channels[schemas.TRUTH_POSE.name], t_ns,
-                      encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0),
-                     (channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
-        if heavy:
-            command = tick.command
-            support = encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
-            messages += ((channels[schemas.TF.name], t_ns,
-                          encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0),
-                         (channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0),
-                         (channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0),
-                         (channels[schemas.TRUTH_SUPPORT.name], t_ns, support, 0),
-                         (channels[schemas.COMMAND.name], to_ns(command.t), encoder.command(command), 0))
-        return messages
-
-    def _write_pending(self, flush: bool) -> None:
-        """Hand what is pending to the writer; a Ctrl-C meanwhile waits until it is handed over."""
+    def _hand_over(self, flush: bool) -> None:
+        """Hand the pending ticks to the writer as columns; a Ctrl-C while they are gathered leaves
+        them pending, one meanwhile handing them over waits until they are handed over."""
+        pending = self._pending
+        first_tick = self._ticks
+        heavy = [(first_tick + index) % self._every == 0 for index in range(len(pending))]
+        columns = codec.TickColumns.of(pending, heavy, self._samples)
         with sigint_deferred():
-            pending, self._pending = self._pending, []
-            self._dataset.write(pending, flush)
+            self._pending = []
+            self._ticks += len(pending)
+            self._samples += len(columns.sample_kinds)
+            self._dataset.write_ticks(columns, flush)
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

@@ -40,7 +40,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from datasets import schemas
+from datasets import codec, schemas
 from datasets.signals import sigint_deferred
 
 if TYPE_CHECKING:
@@ -79,6 +79,7 @@ class DatasetWriter:
         self._file = stream
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._failure: BaseException | None = None
+        self._encoder = codec.Encoder()
         self.closed = False
         self._writing(self._writer.start, profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
         self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
@@ -94,6 +95,11 @@ class DatasetWriter:
     def write(self, messages: list[Message], flush: bool) -> None:
         """Add the messages; `flush` closes the chunk and puts it on the file, flushed."""
         self._writing(self._write, messages, flush)
+
+    def write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        """Serialise the ticks' messages (`codec.Encoder.messages`) and add them, as `write`; a
+        sensor plugin's sample topic is registered when first seen."""
+        self._writing(self._write_ticks, ticks, flush)
 
     def close(self, metrics: dict, outcome: dict[str, str], rename: bool = True) -> None:
         """Write the metrics, the outcome and the summary, then give the file its final name
@@ -151,6 +157,16 @@ class DatasetWriter:
         if flush:
             self._writer.flush()
 
+    def _write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        add, channels = self._writer.add_message, self.channels
+        for topic, log_ns, data, sequence in self._encoder.messages(ticks):
+            channel = channels.get(topic.name)
+            if channel is None:
+                channel = channels[topic.name] = self._register(topic)
+            add(channel, log_ns, data, log_ns, sequence)
+        if flush:
+            self._writer.flush()
+
     def _finish(self, metrics: dict, outcome: dict[str, str]) -> None:
         self._writer.add_metadata("metrics", {"json": json.dumps(_json_safe(metrics), sort_keys=True)})
         self._writer.add_metadata("outcome", outcome)
@@ -160,7 +176,8 @@ class DatasetWriter:
         descriptor_set = build_file_descriptor_set(topic.message_class).SerializeToString()
         schema_id = self._writer.register_schema(topic.message_class.DESCRIPTOR.full_name, SchemaEncoding.Protobuf,
                                                  descriptor_set)
-        return self._writer.register_channel(topic.name, MessageEncoding.Protobuf, schema_id)
+        metadata = {"sample_class": topic.sample_class} if topic.sample_class else {}
+        return self._writer.register_channel(topic.name, MessageEncoding.Protobuf, schema_id, metadata)
 
 
 class RunDescription:
@@ -237,6 +254,12 @@ class WriterProcess:
         """Hand the messages over; raise `WriterFailed` if an earlier batch failed."""
         self._raise_reported_failure()
         self._send("write", messages, flush)
+
+    def write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        """Hand the ticks over, to be serialised by the writer; raise `WriterFailed` if an earlier
+        batch failed."""
+        self._raise_reported_failure()
+        self._send("write_ticks", ticks, flush)
 
     def close(self, metrics: dict, outcome: dict[str, str]) -> None:
         """Have the writer write the metrics, outcome and summary and rename the file; wait for it."""
@@ -327,6 +350,7 @@ def _serve(path: Path, stream: IO[bytes], description: RunDescription, connectio
 def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
     """Write what comes until `close` or the end of the pipe; report the first failed write."""
     reported = False
+    writes = {"write": dataset.write, "write_ticks": dataset.write_ticks}
     while True:
         try:
             command, *args = connection.recv()
@@ -337,7 +361,7 @@ def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
             _close(dataset, args, connection)
             return
         try:
-            dataset.write(*args)
+            writes[command](*args)
         except Exception as error:
             if not reported:
                 connection.send(("failed", _one_line(error)))
