@@ -2,18 +2,23 @@
 
 - The file is written as `<path>.partial` and renamed to `<path>` when it is closed, so a file
   with the final name is always complete.
-- `record` serialises the tick's messages at once (protobuf's `SerializeToString`) and keeps
-  them; every `flush_period` of simulated time it hands them to a writer process
-  (`datasets.writer.WriterProcess`), which adds them through mcap's `Writer` and flushes: the
-  chunk is closed, compressed (zstd), written and flushed to the file. The writing runs in a
-  process because the simulation holds the GIL through its whole step; a thread would only take
-  turns with the run loop.
+- `record` keeps the tick; every `flush_period` of simulated time the pending ticks go to a
+  writer process (`datasets.writer.WriterProcess`) as columns (`codec.TickColumns`: each
+  message kind's fields stacked into arrays), one pickle per handover. The writer serialises the
+  messages from the columns (protobuf's `SerializeToString`), adds them through mcap's `Writer`
+  and flushes: the chunk is closed, compressed (zstd), written and flushed to the file. The
+  serialising and writing run in a process because the simulation holds the GIL through its
+  whole step; a thread would only take turns with the run loop.
+- A sensor plugin's sample type is recorded on its own topic (`schemas.sample_topic`), which the
+  writer registers when it first sees one; a type that cannot be recorded raises TypeError at
+  the handover.
 - A process killed outright leaves a valid `.partial` file holding every message handed over: the
   writer sees its pipe close and writes the summary. What was not handed over yet is lost.
-- The writer ignores Ctrl-C (it reaches the whole process group), and a Ctrl-C during a handover
-  is held until the batch is handed over (`datasets.signals`); `finish`, which the run loop calls
-  after an interrupt or a divergence too, hands over what is pending, the metrics and the summary,
-  and returns when the writer has closed and renamed the file.
+- The writer ignores Ctrl-C (it reaches the whole process group); a Ctrl-C while the columns are
+  gathered leaves the ticks pending, one during a handover is held until the batch is handed over
+  (`datasets.signals`); `finish`, which the run loop calls after an interrupt or a divergence
+  too, hands over what is pending, the metrics and the summary, and returns when the writer has
+  closed and renamed the file.
 - A write that fails (a full disk) is raised as `WriterFailed` at the next handover or by `finish`;
   the file is not written any further and keeps its `.partial` name.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every

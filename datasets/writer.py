@@ -1,20 +1,23 @@
 """The MCAP file of a run: `DatasetWriter` writes it in the calling process, `WriterProcess`
 has a forked process write it.
 
-`WriterProcess` takes the file writing (mcap's `add_message`, zstd compression, indexes, the
-final rename) off the run loop, which holds the GIL for the whole simulated step: a thread
-would only take turns with it, a process runs beside it.
+`WriterProcess` takes the serialising (protobuf, from the columns of `codec.TickColumns`) and
+the file writing (mcap's `add_message`, zstd compression, indexes, the final rename) off the run
+loop, which holds the GIL for the whole simulated step: a thread would only take turns with it,
+a process runs beside it.
 
-- Batches of serialised messages go to the writer through a `multiprocessing` Pipe, one pickle
-  per handover, into a kernel buffer large enough for a whole batch (`Link`), so that handing it
-  over is a copy and does not wait for the writer to be scheduled; the writer answers only the start and `close`, and reports a failed write at
-  once, which the next handover or `close` raises as `WriterFailed`.
+- Batches of ticks (`write_ticks`, as columns) or of serialised messages (`write`) go to the
+  writer through a `multiprocessing` Pipe, one pickle per handover, into a kernel buffer large
+  enough for a whole batch (`Link`), so that handing it over is a copy and does not wait for the
+  writer to be scheduled; the writer answers only the start and `close`, and reports a failed
+  write at once, which the next handover or `close` raises as `WriterFailed`.
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
   without closing: it then closes the file validly and leaves it under its `.partial` name.
 - It is started with `os.fork`: it needs nothing but what this module imported (mcap, zstd,
-  file I/O), so forking copies no state it could trip on (it never touches the parent's threads,
-  BLAS or DART), costs a few milliseconds, and works in daemonic processes (Dask nanny workers,
+  protobuf and the codec, file I/O) and the classes of a sensor plugin's samples (imported
+  already, or by name on unpickling), so forking copies no state it could trip on (it never
+  touches the parent's threads, BLAS or DART), costs a few milliseconds, and works in daemonic processes (Dask nanny workers,
   `multiprocessing.Pool` workers), where `multiprocessing.Process` refuses to start children.
 """
 
