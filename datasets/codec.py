@@ -257,14 +257,16 @@ def column(values: list) -> Any:
     """One field's values, a row each, as one object cheap to pickle: an array whose first axis is
     the row when all are there and of one shape, `Sparse` when some are None, None when all are,
     else the list itself (arrays of different shapes, such as support polygons)."""
-    present = [value is not None for value in values]
-    if not all(present):
-        return Sparse(np.array(present), column([v for v in values if v is not None])) if any(present) else None
     try:
         stacked = np.array(values)
-    except ValueError:          # arrays of different shapes
+    except ValueError:          # arrays of different shapes, or arrays and None
+        stacked = None
+    if stacked is not None and stacked.dtype != object:
+        return stacked
+    present = [value is not None for value in values]
+    if all(present):
         return list(values)
-    return list(values) if stacked.dtype == object else stacked
+    return Sparse(np.array(present), column([v for v in values if v is not None])) if any(present) else None
 
 
 def column_rows(column: Any, count: int) -> list:
@@ -290,9 +292,10 @@ class Columns(NamedTuple):
     @classmethod
     def of(cls, records: list, names: tuple[str, ...], **extra: Any) -> "Columns":
         """The columns of the attributes `names` of `records`, and `extra` columns given as such."""
-        values = [attrgetter(name) for name in names]
-        fields = {name: column(list(map(get, records))) for name, get in zip(names, values)}
-        return cls(len(records), {**fields, **extra})
+        get = attrgetter(*names)
+        rows = map(get, records) if len(names) > 1 else ((get(record),) for record in records)
+        values = list(zip(*rows)) or [()] * len(names)
+        return cls(len(records), {**dict(zip(names, map(column, map(list, values)))), **extra})
 
     def rows(self, name: str) -> list:
         return column_rows(self.fields[name], self.count)
