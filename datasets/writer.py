@@ -331,12 +331,22 @@ def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, con
 def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
     """The writer process's life; it leaves through `os._exit` (no handlers of the parent run)."""
     gc.disable()        # its messages make no reference cycles; collecting would copy the parent's pages
+    _yield_to_the_run_loop()
     status = 1
     try:
         _serve(path, stream, description, connection)
         status = 0
     finally:
         os._exit(status)
+
+
+def _yield_to_the_run_loop() -> None:
+    """Schedule the writer as a batch process (Linux's SCHED_BATCH, same share of the CPU): a
+    handover that wakes it then does not make it preempt the recording process mid-handover."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except (AttributeError, OSError):       # not Linux
+        pass
 
 
 def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
