@@ -321,8 +321,6 @@ class TickColumns(NamedTuple):
     def of(cls, ticks: list[Tick], heavy: list[bool], first_sequence: int) -> "TickColumns":
         samples = [sample for tick in ticks for sample in tick.samples]
         sample_types = tuple(dict.fromkeys(map(type, samples)))
-        for kind in sample_types:
-            sample_topic(kind)          # a type that cannot be recorded is refused here, in the run loop
         kind_of = {kind: index for index, kind in enumerate(sample_types)}
         kinds = [kind_of[type(sample)] for sample in samples]
         estimates = [estimate for tick in ticks for estimate in tick.estimates]

@@ -10,8 +10,8 @@
   serialising and writing run in a process because the simulation holds the GIL through its
   whole step; a thread would only take turns with the run loop.
 - A sensor plugin's sample type is recorded on its own topic (`schemas.sample_topic`), which the
-  writer registers when it first sees one; a type that cannot be recorded raises TypeError at
-  the handover.
+  writer registers when it first sees one; a tick with a sample of a type that cannot be
+  recorded raises TypeError in `record` and is not recorded.
 - A process killed outright leaves a valid `.partial` file holding every message handed over: the
   writer sees its pipe close and writes the summary. What was not handed over yet is lost.
 - The writer ignores Ctrl-C (it reaches the whole process group); a Ctrl-C while the columns are
@@ -61,6 +61,7 @@ class McapRecorder:
         self.busy_s = 0.0               # wall time spent inside the recorder
         self._dataset: WriterProcess | None = None
         self._pending: list[Tick] = []          # not handed over yet
+        self._sample_types: set[type] = set()   # the sample types that can be recorded, seen so far
         self._ticks = 0                 # ticks handed over
         self._samples = 0               # sensor samples handed over: the next one's sequence number
         self._every = 1
@@ -90,6 +91,8 @@ class McapRecorder:
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
+        if not self._sample_types.issuperset(map(type, tick.samples)):
+            self._accept_sample_types(tick.samples)
         self._pending.append(tick)
         self._last_t = t = tick.truth.t
         t_ns = codec.to_ns(t)
@@ -112,6 +115,12 @@ class McapRecorder:
             self._dataset.close(metrics, outcome)
 
     # --- internals ----------------------------------------------------------------------------
+
+    def _accept_sample_types(self, samples: list) -> None:
+        """TypeError, and the tick is not recorded, if a sample's type cannot be recorded."""
+        for sample in samples:
+            codec.sample_topic(type(sample))
+            self._sample_types.add(type(sample))
 
     def _hand_over(self, flush: bool) -> None:
         """Hand the pending ticks to the writer as columns; a Ctrl-C while they are gathered leaves

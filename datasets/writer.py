@@ -11,6 +11,8 @@ a process runs beside it.
   enough for a whole batch (`Link`), so that handing it over is a copy and does not wait for the
   writer to be scheduled; the writer answers only the start and `close`, and reports a failed
   write at once, which the next handover or `close` raises as `WriterFailed`.
+- The writer is scheduled as a batch process (SCHED_BATCH): a handover wakes it without having
+  it preempt the recording process, which would then wait for the handover's end.
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
   without closing: it then closes the file validly and leaves it under its `.partial` name.

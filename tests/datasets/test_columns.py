@@ -13,8 +13,9 @@ from mcap.reader import make_reader
 
 from datasets import codec, schemas
 from datasets.reader import read_recording
+from datasets.recorder import McapRecorder
 from tests.datasets.conftest import record
-from tests.datasets.ticks import generate_ticks, synthetic_config
+from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_urdf
 from testbed.runtime.recording import Tick
 
 
@@ -123,9 +124,19 @@ class NotADataclass:
         self.t = t
 
 
-def test_a_sample_type_that_cannot_be_recorded_is_refused_in_the_run_loop(tmp_path):
+def test_a_tick_with_a_sample_that_cannot_be_recorded_is_refused_in_the_run_loop(tmp_path):
     config = synthetic_config("complementary")
     ticks = list(generate_ticks(config, 0.6))
-    ticks[3] = ticks[3]._replace(samples=[NotADataclass(ticks[3].truth.t)])
-    with pytest.raises(TypeError, match="NotADataclass"):
-        record(tmp_path / "run.mcap", config, ticks)
+    recorder = McapRecorder(tmp_path / "run.mcap")
+    terrain, urdf = terrain_and_urdf(config)
+    recorder.start(config, urdf, terrain)
+    refused = 3
+    for index, tick in enumerate(ticks):
+        if index == refused:
+            with pytest.raises(TypeError, match="NotADataclass"):
+                recorder.record(tick._replace(samples=[*tick.samples, NotADataclass(tick.truth.t)]))
+        else:
+            recorder.record(tick)
+    recorder.finish({}, None)
+    kept = ticks[:refused] + ticks[refused + 1:]
+    assert recorded_messages(recorder.path) == expected_messages(kept, recorder._every)
