@@ -19,8 +19,9 @@ a process runs beside it.
 - It is started with `os.fork`: it needs nothing but what this module imported (mcap, zstd,
   protobuf and the codec, file I/O) and the classes of a sensor plugin's samples (imported
   already, or by name on unpickling), so forking copies no state it could trip on (it never
-  touches the parent's threads, BLAS or DART), costs a few milliseconds, and works in daemonic processes (Dask nanny workers,
-  `multiprocessing.Pool` workers), where `multiprocessing.Process` refuses to start children.
+  touches the parent's threads, BLAS or DART), costs a few milliseconds, and works in daemonic
+  processes (Dask nanny workers, `multiprocessing.Pool` workers), where `multiprocessing.Process`
+  refuses to start children.
 """
 
 from __future__ import annotations
