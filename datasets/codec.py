@@ -7,9 +7,11 @@ back bit-identical arrays (NaN payloads included).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, fields
 from operator import attrgetter
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -25,6 +27,7 @@ from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, S
 from testbed.world.contact import FootContacts
 from testbed.control.command import Command
 from testbed.model.truth import Truth
+from testbed.runtime.recording import Tick
 
 WORLD_FRAME = "world"
 BODY_FRAME = "body"         # the URDF's root link
@@ -67,10 +70,11 @@ def repeated_fields(message_class: type) -> dict[str, bool]:
 
 class MessageEncoder:
     """Serialises messages of one protobuf class of scalar and repeated scalar fields (the
-    `hexapod` messages) from their field values, in the order the descriptor lists the fields:
-    `encode` takes the values in that order, `encode_fields_of` reads the attributes named as the
-    fields. Arrays of any shape go to repeated fields row-major; None leaves a field absent (an
-    unset proto3 `optional`, an empty repeated field).
+    `hexapod` messages) from their field values, in the order the descriptor lists the fields
+    (`field_names`): `encode` takes the values in that order, `encode_fields_of` reads the
+    attributes named as the fields, `encode_rows` takes the fields' columns (`Columns`). Arrays of
+    any shape go to repeated fields row-major; None leaves a field absent (an unset proto3
+    `optional`, an empty repeated field).
 
     One message object is filled again for each call, its repeated fields' containers looked up
     once: cheaper than building a new message each time."""
@@ -78,19 +82,30 @@ class MessageEncoder:
     def __init__(self, message_class: type):
         message = self._message = message_class()
         repeated = repeated_fields(message_class)
+        self.field_names = tuple(repeated)
         # (name, the repeated field's container or None for a singular field)
         self._fields = [(name, getattr(message, name) if repeated[name] else None) for name in repeated]
-        getter = attrgetter(*(name for name, _ in self._fields))
+        getter = attrgetter(*self.field_names)
         self._values_of = getter if len(self._fields) > 1 else lambda item: (getter(item),)
 
     def encode_fields_of(self, item: Any) -> bytes:
         return self.encode(self._values_of(item))
 
     def encode(self, values: Any) -> bytes:
+        return self._serialise([value if value is None or repeated is None else _flat(value)
+                                for (_, repeated), value in zip(self._fields, values)])
+
+    def encode_rows(self, columns: "Columns") -> list[bytes]:
+        """The messages of every row of `columns`, which holds a column for each field."""
+        field_rows = [columns.rows(name) for name in self.field_names]
+        return [self._serialise(values) for values in zip(*field_rows)]
+
+    def _serialise(self, values: Any) -> bytes:
+        """The message of these values, repeated fields' values given as flat lists."""
         message = self._message
         for (name, repeated), value in zip(self._fields, values):
             if repeated is not None:
-                repeated[:] = () if value is None else _flat(value)
+                repeated[:] = () if value is None else value
             elif value is None:
                 message.ClearField(name)
             else:
@@ -98,19 +113,29 @@ class MessageEncoder:
         return message.SerializeToString()
 
 
+SAMPLE_TOPICS = {ImuSample: schemas.IMU, AccelSample: schemas.ACCEL_ARRAY, EncoderSample: schemas.ENCODERS,
+                 FootSample: schemas.FEET}
+
+
+def sample_topic(kind: type) -> schemas.Topic:
+    """The topic of a type of sensor sample: a sensor plugin's type gets its own
+    (`schemas.sample_topic`; TypeError if it cannot be recorded)."""
+    topic = SAMPLE_TOPICS.get(kind)
+    return topic if topic is not None else schemas.sample_topic(kind)
+
+
 # The Contacts message: t, then the FootContacts arrays of its other fields' names.
 _CONTACT_ARRAYS = attrgetter(*(name for name, _, _ in schemas.MESSAGES["Contacts"][1:]))
 
 
 class Encoder:
-    """Serialises the testbed's objects into the dataset's messages, one at a time."""
+    """Serialises the testbed's objects into the dataset's messages: one at a time, or a
+    handover's ticks at once from their columns (`messages`)."""
 
     def __init__(self) -> None:
         encoders = {name: MessageEncoder(message_class) for name, message_class in schemas.CLASSES.items()}
-        self._samples = {ImuSample: (schemas.IMU.name, encoders["ImuSample"]),
-                         AccelSample: (schemas.ACCEL_ARRAY.name, encoders["AccelSample"]),
-                         EncoderSample: (schemas.ENCODERS.name, encoders["EncoderSample"]),
-                         FootSample: (schemas.FEET.name, encoders["FootSample"])}
+        self._samples = {kind: (topic, encoders[topic.message_class.DESCRIPTOR.name])
+                         for kind, topic in SAMPLE_TOPICS.items()}
         self._estimate, self._feet, self._state = encoders["Estimate"], encoders["FeetTruth"], encoders["TruthState"]
         self._contacts, self._support, self._command = encoders["Contacts"], encoders["Support"], encoders["Command"]
         self._pose = PoseInFrame(frame_id=WORLD_FRAME)
@@ -119,28 +144,21 @@ class Encoder:
         self._transform_parts = (self._transform.timestamp, self._transform.translation, self._transform.rotation)
 
     def sample(self, sample: Sample) -> tuple[str, bytes]:
-        """(topic name, message bytes) of one sensor sample; a sensor plugin's sample type gets
-        its own topic (`schemas.sample_topic`)."""
-        kind = type(sample)
-        if kind not in self._samples:
-            topic = schemas.sample_topic(kind)
-            self._samples[kind] = (topic.name, MessageEncoder(topic.message_class))
-        topic, encoder = self._samples[kind]
-        return topic, encoder.encode_fields_of(sample)
+        """(topic name, message bytes) of one sensor sample."""
+        topic, encoder = self._sample_encoder(type(sample))
+        return topic.name, encoder.encode_fields_of(sample)
 
     def estimate(self, estimate: Estimate) -> bytes:
         return self._estimate.encode_fields_of(estimate)
 
     def pose(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        _set_stamped_pose(self._pose_parts, t_ns, position, quaternion)
-        return self._pose.SerializeToString()
+        return self._stamped_pose(self._pose, self._pose_parts, t_ns, _flat(position), _flat(quaternion))
 
     def feet(self, truth: Truth) -> bytes:
         return self._feet.encode_fields_of(truth)
 
     def transform(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        _set_stamped_pose(self._transform_parts, t_ns, position, quaternion)
-        return self._transform.SerializeToString()
+        return self._stamped_pose(self._transform, self._transform_parts, t_ns, _flat(position), _flat(quaternion))
 
     def truth_state(self, truth: Truth) -> bytes:
         return self._state.encode_fields_of(truth)
@@ -154,13 +172,186 @@ class Encoder:
     def command(self, command: Command) -> bytes:
         return self._command.encode_fields_of(command)
 
+    def messages(self, ticks: "TickColumns") -> Iterator[tuple[schemas.Topic, int, bytes, int]]:
+        """(topic, log time ns, data, sequence) of every message of `ticks`, in file order: each
+        tick's samples (numbered on from `first_sequence`), estimates, pose and feet, then at a
+        heavy tick its transform, state, contacts, support and command."""
+        samples = [self._sample_messages(kind, columns) for kind, columns in zip(ticks.sample_types, ticks.samples)]
+        sample_kinds = iter(ticks.sample_kinds.tolist())
+        estimates = self._stamped_rows(self._estimate, ticks.estimates)
+        every_tick = self._every_tick_messages(ticks.truth)
+        heavy = self._heavy_messages(ticks)
+        sequence = ticks.first_sequence
+        for sample_count, estimate_count, is_heavy in zip(ticks.samples_per_tick.tolist(),
+                                                           ticks.estimates_per_tick.tolist(), ticks.heavy.tolist()):
+            for _ in range(sample_count):
+                topic, log_ns, data = next(samples[next(sample_kinds)])
+                yield topic, log_ns, data, sequence
+                sequence += 1
+            for _ in range(estimate_count):
+                log_ns, data = next(estimates)
+                yield schemas.ESTIMATE, log_ns, data, 0
+            yield from next(every_tick)
+            if is_heavy:
+                yield from next(heavy)
 
-def _set_stamped_pose(parts, t_ns: int, position: np.ndarray, orientation: np.ndarray) -> None:
-    """Fill a google.protobuf.Timestamp, a foxglove.Vector3 and a foxglove.Quaternion."""
-    stamp, vector, quaternion = parts
-    stamp.seconds, stamp.nanos = divmod(t_ns, NS_PER_S)
-    vector.x, vector.y, vector.z = _flat(position)
-    quaternion.x, quaternion.y, quaternion.z, quaternion.w = _flat(orientation)
+    def _sample_encoder(self, kind: type) -> tuple[schemas.Topic, MessageEncoder]:
+        if kind not in self._samples:
+            topic = sample_topic(kind)
+            self._samples[kind] = (topic, MessageEncoder(topic.message_class))
+        return self._samples[kind]
+
+    def _sample_messages(self, kind: type, columns: "Columns") -> Iterator[tuple[schemas.Topic, int, bytes]]:
+        topic, encoder = self._sample_encoder(kind)
+        return ((topic, log_ns, data) for log_ns, data in self._stamped_rows(encoder, columns))
+
+    @staticmethod
+    def _stamped_rows(encoder: MessageEncoder, columns: "Columns") -> Iterator[tuple[int, bytes]]:
+        """(log time ns, data) of each row, its log time that of its field `t`."""
+        return zip(map(to_ns, columns.rows("t")), encoder.encode_rows(columns))
+
+    def _every_tick_messages(self, truth: "Columns") -> Iterator[tuple]:
+        """Each tick's pose and feet messages."""
+        feet = self._feet.encode_rows(truth)
+        for t, position, quaternion, feet_data in zip(truth.rows("t"), truth.rows("body_position"),
+                                                        truth.rows("quaternion"), feet):
+            t_ns = to_ns(t)
+            yield ((schemas.TRUTH_POSE, t_ns, self._stamped_pose(self._pose, self._pose_parts, t_ns, position,
+                                                                  quaternion), 0),
+                   (schemas.TRUTH_FEET, t_ns, feet_data, 0))
+
+    def _heavy_messages(self, ticks: "TickColumns") -> Iterator[tuple]:
+        """Each heavy tick's transform, state, contacts, support and command messages."""
+        state = ticks.state
+        rows = zip(state.rows("t"), state.rows("body_position"), state.rows("quaternion"),
+                   self._state.encode_rows(state), self._contacts.encode_rows(ticks.contacts),
+                   self._support.encode_rows(ticks.support), self._stamped_rows(self._command, ticks.commands))
+        for t, position, quaternion, state_data, contacts_data, support_data, (command_ns, command_data) in rows:
+            t_ns = to_ns(t)
+            transform = self._stamped_pose(self._transform, self._transform_parts, t_ns, position, quaternion)
+            yield ((schemas.TF, t_ns, transform, 0), (schemas.TRUTH_STATE, t_ns, state_data, 0),
+                   (schemas.TRUTH_CONTACTS, t_ns, contacts_data, 0), (schemas.TRUTH_SUPPORT, t_ns, support_data, 0),
+                   (schemas.COMMAND, command_ns, command_data, 0))
+
+    @staticmethod
+    def _stamped_pose(message, parts, t_ns: int, position: list, orientation: list) -> bytes:
+        """Fill and serialise a message of a google.protobuf.Timestamp, a foxglove.Vector3 and a
+        foxglove.Quaternion (`parts`) from flat lists."""
+        stamp, vector, quaternion = parts
+        stamp.seconds, stamp.nanos = divmod(t_ns, NS_PER_S)
+        vector.x, vector.y, vector.z = position
+        quaternion.x, quaternion.y, quaternion.z, quaternion.w = orientation
+        return message.SerializeToString()
+
+
+# --- columns: a handover's ticks field by field ------------------------------------------------
+
+@dataclass(frozen=True)
+class Sparse:
+    """The column of a field that some rows leave out (None)."""
+    present: np.ndarray         # (n,) bool
+    values: Any                 # the column of the present rows
+
+
+def column(values: list) -> Any:
+    """One field's values, a row each, as one object cheap to pickle: an array whose first axis is
+    the row when all are there and of one shape, `Sparse` when some are None, None when all are,
+    else the list itself (arrays of different shapes, such as support polygons)."""
+    try:
+        stacked = np.array(values)
+    except ValueError:          # arrays of different shapes, or arrays and None
+        stacked = None
+    if stacked is not None and stacked.dtype != object:
+        return stacked
+    present = [value is not None for value in values]
+    if all(present):
+        return list(values)
+    return Sparse(np.array(present), column([v for v in values if v is not None])) if any(present) else None
+
+
+def column_rows(column: Any, count: int) -> list:
+    """A column's `count` values, arrays as flat row-major lists (what `MessageEncoder` fills
+    repeated fields from), absent ones as None."""
+    if column is None:
+        return [None] * count
+    if isinstance(column, Sparse):
+        present = iter(column_rows(column.values, int(column.present.sum())))
+        return [next(present) if here else None for here in column.present.tolist()]
+    if isinstance(column, list):
+        return [_flat(value) if isinstance(value, (np.ndarray, list, tuple)) else value for value in column]
+    if column.ndim == 1:
+        return column.tolist()
+    return column.reshape(len(column), math.prod(column.shape[1:])).tolist()
+
+
+class Columns(NamedTuple):
+    """Messages of one kind field by field: `fields` maps a field name to its column."""
+    count: int
+    fields: dict[str, Any]
+
+    @classmethod
+    def of(cls, records: list, names: tuple[str, ...], **extra: Any) -> "Columns":
+        """The columns of the attributes `names` of `records`, and `extra` columns given as such."""
+        get = attrgetter(*names)
+        rows = map(get, records) if len(names) > 1 else ((get(record),) for record in records)
+        values = list(zip(*rows)) or [()] * len(names)
+        return cls(len(records), {**dict(zip(names, map(column, map(list, values)))), **extra})
+
+    def rows(self, name: str) -> list:
+        return column_rows(self.fields[name], self.count)
+
+
+class TickColumns(NamedTuple):
+    """A handover's ticks as columns: what `McapRecorder` hands its writer (`Encoder.messages`)."""
+    first_sequence: int             # the first sample's sequence number
+    samples_per_tick: np.ndarray    # (ticks,) int
+    sample_kinds: np.ndarray        # (samples,) int, each sample's index in sample_types, in tick order
+    sample_types: tuple[type, ...]
+    samples: tuple[Columns, ...]    # the samples of each type: the dataclass's fields
+    estimates_per_tick: np.ndarray  # (ticks,) int
+    estimates: Columns              # the fields of `Estimate`
+    truth: Columns                  # every tick: t, body_position, quaternion, foot_positions, foot_contact
+    heavy: np.ndarray               # (ticks,) bool: the ticks whose heavy truth and command are recorded
+    state: Columns                  # the heavy ticks' `Truth`, and their quaternion
+    contacts: Columns               # t and the fields of `FootContacts`
+    support: Columns                # the fields of the Support message
+    commands: Columns               # the fields of `Command`
+
+    @classmethod
+    def of(cls, ticks: list[Tick], heavy: list[bool], first_sequence: int) -> "TickColumns":
+        samples = [sample for tick in ticks for sample in tick.samples]
+        sample_types = tuple(dict.fromkeys(map(type, samples)))
+        kind_of = {kind: index for index, kind in enumerate(sample_types)}
+        kinds = [kind_of[type(sample)] for sample in samples]
+        estimates = [estimate for tick in ticks for estimate in tick.estimates]
+        heavy_ticks = [tick for tick, is_heavy in zip(ticks, heavy) if is_heavy]
+        state = Columns.of([tick.truth for tick in heavy_ticks], Truth._fields,
+                           quaternion=column([tick.truth_quaternion for tick in heavy_ticks]))
+        t = state.fields["t"]
+        return cls(
+            first_sequence=first_sequence,
+            samples_per_tick=np.array([len(tick.samples) for tick in ticks], dtype=int),
+            sample_kinds=np.array(kinds, dtype=int), sample_types=sample_types,
+            samples=tuple(Columns.of([s for s in samples if type(s) is kind], _field_names(kind))
+                          for kind in sample_types),
+            estimates_per_tick=np.array([len(tick.estimates) for tick in ticks], dtype=int),
+            estimates=Columns.of(estimates, _ESTIMATE_FIELDS),
+            truth=Columns.of([tick.truth for tick in ticks], ("t", "body_position", "foot_positions", "foot_contact"),
+                             quaternion=column([tick.truth_quaternion for tick in ticks])),
+            heavy=np.array(heavy, dtype=bool), state=state,
+            contacts=Columns.of([tick.contacts for tick in heavy_ticks], FootContacts._fields, t=t),
+            support=Columns(len(heavy_ticks), {
+                "t": t, "polygon": column([tick.support_polygon for tick in heavy_ticks]),
+                "com_projection": column([tick.truth.com_position[:2] for tick in heavy_ticks]),
+                "stability_margin": column([float(tick.stability_margin) for tick in heavy_ticks])}),
+            commands=Columns.of([tick.command for tick in heavy_ticks], Command._fields))
+
+
+def _field_names(dataclass_type: type) -> tuple[str, ...]:
+    return tuple(field.name for field in fields(dataclass_type))
+
+
+_ESTIMATE_FIELDS = _field_names(Estimate)
 
 
 def terrain_message(centers: np.ndarray, half_extents: np.ndarray, rotations: np.ndarray, name: str) -> bytes:

@@ -2,18 +2,23 @@
 
 - The file is written as `<path>.partial` and renamed to `<path>` when it is closed, so a file
   with the final name is always complete.
-- `record` serialises the tick's messages at once (protobuf's `SerializeToString`) and keeps
-  them; every `flush_period` of simulated time it hands them to a writer process
-  (`datasets.writer.WriterProcess`), which adds them through mcap's `Writer` and flushes: the
-  chunk is closed, compressed (zstd), written and flushed to the file. The writing runs in a
-  process because the simulation holds the GIL through its whole step; a thread would only take
-  turns with the run loop.
+- `record` keeps the tick; every `flush_period` of simulated time the pending ticks go to a
+  writer process (`datasets.writer.WriterProcess`) as columns (`codec.TickColumns`: each
+  message kind's fields stacked into arrays), one pickle per handover. The writer serialises the
+  messages from the columns (protobuf's `SerializeToString`), adds them through mcap's `Writer`
+  and flushes: the chunk is closed, compressed (zstd), written and flushed to the file. The
+  serialising and writing run in a process because the simulation holds the GIL through its
+  whole step; a thread would only take turns with the run loop.
+- A sensor plugin's sample type is recorded on its own topic (`schemas.sample_topic`), which the
+  writer registers when it first sees one; a tick with a sample of a type that cannot be
+  recorded raises TypeError in `record` and is not recorded.
 - A process killed outright leaves a valid `.partial` file holding every message handed over: the
   writer sees its pipe close and writes the summary. What was not handed over yet is lost.
-- The writer ignores Ctrl-C (it reaches the whole process group), and a Ctrl-C during a handover
-  is held until the batch is handed over (`datasets.signals`); `finish`, which the run loop calls
-  after an interrupt or a divergence too, hands over what is pending, the metrics and the summary,
-  and returns when the writer has closed and renamed the file.
+- The writer ignores Ctrl-C (it reaches the whole process group); a Ctrl-C while the columns are
+  gathered leaves the ticks pending, one during a handover is held until the batch is handed over
+  (`datasets.signals`); `finish`, which the run loop calls after an interrupt or a divergence
+  too, hands over what is pending, the metrics and the summary, and returns when the writer has
+  closed and renamed the file.
 - A write that fails (a full disk) is raised as `WriterFailed` at the next handover or by `finish`;
   the file is not written any further and keeps its `.partial` name.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every
@@ -31,7 +36,7 @@ from typing import TYPE_CHECKING
 
 from datasets import codec, schemas
 from datasets.signals import sigint_deferred
-from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, Message, WriterFailed, WriterProcess, partial_path_of
+from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, WriterFailed, WriterProcess, partial_path_of
 from testbed.runtime.parts import part_sources
 from testbed.runtime.recording import Tick
 
@@ -55,11 +60,10 @@ class McapRecorder:
         self.flush_period = flush_period
         self.busy_s = 0.0               # wall time spent inside the recorder
         self._dataset: WriterProcess | None = None
-        self._encoder = codec.Encoder()
-        self._channels: dict[str, int] = {}
-        self._pending: list[Message] = []       # serialised, not yet written
-        self._ticks = 0
-        self._samples = 0               # sensor samples so far: the next one's sequence number
+        self._pending: list[Tick] = []          # not handed over yet
+        self._sample_types: set[type] = set()   # the sample types that can be recorded, seen so far
+        self._ticks = 0                 # ticks handed over
+        self._samples = 0               # sensor samples handed over: the next one's sequence number
         self._every = 1
         self._next_flush_ns = 0
         self._last_t = 0.0
@@ -79,25 +83,21 @@ class McapRecorder:
         started = time.perf_counter()
         self._every = truth_every(config.run.time_step, self.truth_rate)
         self._dataset = WriterProcess(self.path, run_description(config, self._every, self.truth_rate), config, urdf)
-        self._channels = self._dataset.channels
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
-        self._dataset.write([(self._channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
+        self._dataset.write([(self._dataset.channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
         self._next_flush_ns = codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 
     def record(self, tick: Tick) -> None:
         started = time.perf_counter()
-        t = tick.truth.t
-        messages = self._messages(tick, self._ticks % self._every == 0)
-        # Added whole or not at all: a Ctrl-C while serialising drops only this tick.
-        self._pending += messages
-        self._samples += len(tick.samples)
-        self._ticks += 1
-        self._last_t = t
+        if not self._sample_types.issuperset(map(type, tick.samples)):
+            self._accept_sample_types(tick.samples)
+        self._pending.append(tick)
+        self._last_t = t = tick.truth.t
         t_ns = codec.to_ns(t)
         if t_ns >= self._next_flush_ns:
-            self._write_pending(flush=True)
+            self._hand_over(flush=True)
             self._next_flush_ns = t_ns + codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 
@@ -107,49 +107,33 @@ class McapRecorder:
             return
         started = time.perf_counter()
         try:
-            self._write_pending(flush=False)
+            self._hand_over(flush=False)
         finally:
-            outcome = {"error": error or "", "ticks": str(self._ticks), "sim_time_s": repr(self._last_t),
+            ticks = self._ticks + len(self._pending)
+            outcome = {"error": error or "", "ticks": str(ticks), "sim_time_s": repr(self._last_t),
                        "recording_wall_s": repr(self.busy_s + time.perf_counter() - started)}
             self._dataset.close(metrics, outcome)
 
     # --- internals ----------------------------------------------------------------------------
 
-    def _messages(self, tick: Tick, heavy: bool) -> list[Message]:
-        """The tick's messages in file order: its samples (numbered on from the samples before
-        them), estimates, pose and feet, then with `heavy` its transform, state, contacts, support
-        and command."""
-        channels, encoder, to_ns = self._channels, self._encoder, codec.to_ns
-        truth = tick.truth
-        t_ns = to_ns(truth.t)
-        messages: list[Message] = []
-        sequence = self._samples
-        for sample in tick.samples:
-            topic, data = encoder.sample(sample)
-            messages.append((channels[topic], to_ns(sample.t), data, sequence))
-            sequence += 1
-        estimate_channel = channels[schemas.ESTIMATE.name]
-        for estimate in tick.estimates:
-            messages.append((estimate_channel, to_ns(estimate.t), encoder.estimate(estimate), 0))
-        messages += ((channels[schemas.TRUTH_POSE.name], t_ns,
-                      encoder.pose(t_ns, truth.body_position, tick.truth_quaternion), 0),
-                     (channels[schemas.TRUTH_FEET.name], t_ns, encoder.feet(truth), 0))
-        if heavy:
-            command = tick.command
-            support = encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
-            messages += ((channels[schemas.TF.name], t_ns,
-                          encoder.transform(t_ns, truth.body_position, tick.truth_quaternion), 0),
-                         (channels[schemas.TRUTH_STATE.name], t_ns, encoder.truth_state(truth), 0),
-                         (channels[schemas.TRUTH_CONTACTS.name], t_ns, encoder.contacts(truth.t, tick.contacts), 0),
-                         (channels[schemas.TRUTH_SUPPORT.name], t_ns, support, 0),
-                         (channels[schemas.COMMAND.name], to_ns(command.t), encoder.command(command), 0))
-        return messages
+    def _accept_sample_types(self, samples: list) -> None:
+        """TypeError, and the tick is not recorded, if a sample's type cannot be recorded."""
+        for sample in samples:
+            codec.sample_topic(type(sample))
+            self._sample_types.add(type(sample))
 
-    def _write_pending(self, flush: bool) -> None:
-        """Hand what is pending to the writer; a Ctrl-C meanwhile waits until it is handed over."""
+    def _hand_over(self, flush: bool) -> None:
+        """Hand the pending ticks to the writer as columns; a Ctrl-C while they are gathered leaves
+        them pending, one meanwhile handing them over waits until they are handed over."""
+        pending = self._pending
+        first_tick = self._ticks
+        heavy = [(first_tick + index) % self._every == 0 for index in range(len(pending))]
+        columns = codec.TickColumns.of(pending, heavy, self._samples)
         with sigint_deferred():
-            pending, self._pending = self._pending, []
-            self._dataset.write(pending, flush)
+            self._pending = []
+            self._ticks += len(pending)
+            self._samples += len(columns.sample_kinds)
+            self._dataset.write_ticks(columns, flush)
 
 
 def run_description(config: "Config", every: int, truth_rate: float) -> dict[str, str]:

@@ -1,21 +1,27 @@
 """The MCAP file of a run: `DatasetWriter` writes it in the calling process, `WriterProcess`
 has a forked process write it.
 
-`WriterProcess` takes the file writing (mcap's `add_message`, zstd compression, indexes, the
-final rename) off the run loop, which holds the GIL for the whole simulated step: a thread
-would only take turns with it, a process runs beside it.
+`WriterProcess` takes the serialising (protobuf, from the columns of `codec.TickColumns`) and
+the file writing (mcap's `add_message`, zstd compression, indexes, the final rename) off the run
+loop, which holds the GIL for the whole simulated step: a thread would only take turns with it,
+a process runs beside it.
 
-- Batches of serialised messages go to the writer through a `multiprocessing` Pipe, one pickle
-  per handover, into a kernel buffer large enough for a whole batch (`Link`), so that handing it
-  over is a copy and does not wait for the writer to be scheduled; the writer answers only the start and `close`, and reports a failed write at
-  once, which the next handover or `close` raises as `WriterFailed`.
+- Batches of ticks (`write_ticks`, as columns) or of serialised messages (`write`) go to the
+  writer through a `multiprocessing` Pipe, one pickle per handover, into a kernel buffer large
+  enough for a whole batch (`Link`), so that handing it over is a copy and does not wait for the
+  writer to be scheduled; the writer answers only the start and `close`, and reports a failed
+  write at once, which the next handover or `close` raises as `WriterFailed`.
+- The writer is scheduled as a batch process (SCHED_BATCH): a handover wakes it without having
+  it preempt the recording process, which would then wait for the handover's end.
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
   without closing: it then closes the file validly and leaves it under its `.partial` name.
 - It is started with `os.fork`: it needs nothing but what this module imported (mcap, zstd,
-  file I/O), so forking copies no state it could trip on (it never touches the parent's threads,
-  BLAS or DART), costs a few milliseconds, and works in daemonic processes (Dask nanny workers,
-  `multiprocessing.Pool` workers), where `multiprocessing.Process` refuses to start children.
+  protobuf and the codec, file I/O) and the classes of a sensor plugin's samples (imported
+  already, or by name on unpickling), so forking copies no state it could trip on (it never
+  touches the parent's threads, BLAS or DART), costs a few milliseconds, and works in daemonic
+  processes (Dask nanny workers, `multiprocessing.Pool` workers), where `multiprocessing.Process`
+  refuses to start children.
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from datasets import schemas
+from datasets import codec, schemas
 from datasets.signals import sigint_deferred
 
 if TYPE_CHECKING:
@@ -79,6 +85,7 @@ class DatasetWriter:
         self._file = stream
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._failure: BaseException | None = None
+        self._encoder = codec.Encoder()
         self.closed = False
         self._writing(self._writer.start, profile=PROFILE, library=f"hexapod-testbed/{_version('hexapod-testbed')}")
         self.channels = {topic.name: self._register(topic) for topic in schemas.TOPICS}
@@ -94,6 +101,11 @@ class DatasetWriter:
     def write(self, messages: list[Message], flush: bool) -> None:
         """Add the messages; `flush` closes the chunk and puts it on the file, flushed."""
         self._writing(self._write, messages, flush)
+
+    def write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        """Serialise the ticks' messages (`codec.Encoder.messages`) and add them, as `write`; a
+        sensor plugin's sample topic is registered when first seen."""
+        self._writing(self._write_ticks, ticks, flush)
 
     def close(self, metrics: dict, outcome: dict[str, str], rename: bool = True) -> None:
         """Write the metrics, the outcome and the summary, then give the file its final name
@@ -151,6 +163,16 @@ class DatasetWriter:
         if flush:
             self._writer.flush()
 
+    def _write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        add, channels = self._writer.add_message, self.channels
+        for topic, log_ns, data, sequence in self._encoder.messages(ticks):
+            channel = channels.get(topic.name)
+            if channel is None:
+                channel = channels[topic.name] = self._register(topic)
+            add(channel, log_ns, data, log_ns, sequence)
+        if flush:
+            self._writer.flush()
+
     def _finish(self, metrics: dict, outcome: dict[str, str]) -> None:
         self._writer.add_metadata("metrics", {"json": json.dumps(_json_safe(metrics), sort_keys=True)})
         self._writer.add_metadata("outcome", outcome)
@@ -160,7 +182,8 @@ class DatasetWriter:
         descriptor_set = build_file_descriptor_set(topic.message_class).SerializeToString()
         schema_id = self._writer.register_schema(topic.message_class.DESCRIPTOR.full_name, SchemaEncoding.Protobuf,
                                                  descriptor_set)
-        return self._writer.register_channel(topic.name, MessageEncoding.Protobuf, schema_id)
+        metadata = {"sample_class": topic.sample_class} if topic.sample_class else {}
+        return self._writer.register_channel(topic.name, MessageEncoding.Protobuf, schema_id, metadata)
 
 
 class RunDescription:
@@ -238,6 +261,12 @@ class WriterProcess:
         self._raise_reported_failure()
         self._send("write", messages, flush)
 
+    def write_ticks(self, ticks: codec.TickColumns, flush: bool) -> None:
+        """Hand the ticks over, to be serialised by the writer; raise `WriterFailed` if an earlier
+        batch failed."""
+        self._raise_reported_failure()
+        self._send("write_ticks", ticks, flush)
+
     def close(self, metrics: dict, outcome: dict[str, str]) -> None:
         """Have the writer write the metrics, outcome and summary and rename the file; wait for it."""
         if self.closed:
@@ -305,12 +334,22 @@ def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, con
 def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
     """The writer process's life; it leaves through `os._exit` (no handlers of the parent run)."""
     gc.disable()        # its messages make no reference cycles; collecting would copy the parent's pages
+    _yield_to_the_run_loop()
     status = 1
     try:
         _serve(path, stream, description, connection)
         status = 0
     finally:
         os._exit(status)
+
+
+def _yield_to_the_run_loop() -> None:
+    """Schedule the writer as a batch process (Linux's SCHED_BATCH, same share of the CPU): a
+    handover that wakes it then does not make it preempt the recording process mid-handover."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except (AttributeError, OSError):       # not Linux
+        pass
 
 
 def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
@@ -327,6 +366,7 @@ def _serve(path: Path, stream: IO[bytes], description: RunDescription, connectio
 def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
     """Write what comes until `close` or the end of the pipe; report the first failed write."""
     reported = False
+    writes = {"write": dataset.write, "write_ticks": dataset.write_ticks}
     while True:
         try:
             command, *args = connection.recv()
@@ -337,7 +377,7 @@ def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
             _close(dataset, args, connection)
             return
         try:
-            dataset.write(*args)
+            writes[command](*args)
         except Exception as error:
             if not reported:
                 connection.send(("failed", _one_line(error)))

@@ -152,7 +152,7 @@ def test_ctrl_c_during_a_handover_is_delivered_after_it_and_the_file_closes_vali
         for tick in ticks:
             recorded += 1
             recorder.record(tick)
-    assert sent == ["write", "sent"]        # the handover went on to its end
+    assert sent == ["write_ticks", "sent"]      # the handover went on to its end
     recorder.finish({"interrupted": True}, "interrupted")
     recording = read_recording(recorder.path)
     assert recording.truncated is None and recording.metrics() == {"interrupted": True}

@@ -12,7 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from datasets.reader import read_recording
+
 TESTBED = [sys.executable, "-m", "testbed.tools.cli"]
+ROOT = Path(__file__).resolve().parents[2]     # this checkout's code, ahead of any installed copy
 
 MODULE = textwrap.dedent('''
     import numpy as np
@@ -80,7 +83,7 @@ def package(tmp_path_factory) -> Path:
 
 
 def run_cli(arguments: list[str], package: Path, cwd: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(package))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join((str(package), str(ROOT))))
     return subprocess.run(TESTBED + arguments, capture_output=True, text=True, timeout=300, env=env, cwd=cwd)
 
 
@@ -98,3 +101,39 @@ def test_a_registered_terrain_gait_and_estimator_run_by_name(package, tmp_path):
     metrics = json.loads((tmp_path / "m.json").read_text())
     assert metrics["fell"] is False and metrics["distance_m"] > 0.05
     assert 0 < metrics["roll_rmse_deg"] < 5.0 and 0 < metrics["pitch_rmse_deg"] < 5.0    # a drifting gyro, scored
+
+
+SENSOR_ENTRY_POINTS = textwrap.dedent('''
+    [hexapod_testbed.sensors]
+    barometer = my_sensor:Barometer
+    ''')
+
+
+@pytest.fixture(scope="module")
+def sensor_package(tmp_path_factory) -> Path:
+    """examples/my_sensor.py (a barometer) registered as a sensor."""
+    folder = tmp_path_factory.mktemp("sensor-site")
+    example = ROOT / "examples" / "my_sensor.py"
+    (folder / "my_sensor.py").write_text(example.read_text())
+    info = folder / "my_sensor-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: my-sensor\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(SENSOR_ENTRY_POINTS)
+    return folder
+
+
+def test_a_registered_sensor_is_recorded_on_its_own_topic_listed_and_replayed(sensor_package, tmp_path, monkeypatch):
+    run = tmp_path / "r.mcap"
+    result = run_cli(["run", "--estimator", "ekf", "--duration", "1", "--out", str(run)], sensor_package, tmp_path)
+    assert result.returncode == 0, result.stderr
+    info = run_cli(["info", str(run)], sensor_package, tmp_path)
+    assert info.returncode == 0, info.stderr
+    assert "/sensors/my_sensor.BaroSample" in info.stdout
+    replay = run_cli(["replay", str(run), "--estimator", "ekf", "--metrics", str(tmp_path / "m.json")],
+                     sensor_package, tmp_path)
+    assert replay.returncode == 0, replay.stderr
+    assert json.loads((tmp_path / "m.json").read_text())["roll_rmse_deg"] > 0
+
+    monkeypatch.syspath_prepend(str(sensor_package))
+    barometer = [s for s in read_recording(run).samples() if type(s).__name__ == "BaroSample"]
+    assert len(barometer) == 51 and all(type(s).__module__ == "my_sensor" for s in barometer)    # 50 Hz, t = 0 to 1 s
