@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from testbed.model.kinematics import LegGeometry, world_feet_of
+from testbed.model.spatial import quaternion_from_matrix
 from testbed.world.records import one_record, the_record
 
 LEGS = 6
@@ -78,7 +79,8 @@ def read_out_into(positions, velocities, settings, out):
             out.rotation[i, j] = rotation[i, j]
     settings.previous_linear_velocity[:] = out.linear_velocity
     settings.previous_angular_velocity[:] = out.angular_velocity
-    out.quaternion[:] = rotation_to_quaternion(rotation)
+    x, y, z, w = quaternion_from_matrix(rotation)
+    out.quaternion[0], out.quaternion[1], out.quaternion[2], out.quaternion[3] = x, y, z, w
     if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
         return False, rotation[2, 2]
     centers, feet_velocities, spins, rotations, origins = world_feet_of(
@@ -127,29 +129,3 @@ def free_joint_twist(rotation, velocities):
     return twist
 
 
-@njit(cache=True)
-def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """(x, y, z, w) of a rotation matrix by Eigen's algorithm, the one DART's quaternion() runs (same
-    branch, hence the same sign)."""
-    m = rotation
-    q = np.empty(4)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0.0:
-        t = math.sqrt(trace + 1.0)
-        q[3] = 0.5 * t
-        t = 0.5 / t
-        q[0], q[1], q[2] = (m[2, 1] - m[1, 2]) * t, (m[0, 2] - m[2, 0]) * t, (m[1, 0] - m[0, 1]) * t
-        return q
-    i = 0
-    if m[1, 1] > m[0, 0]:
-        i = 1
-    if m[2, 2] > m[i, i]:
-        i = 2
-    j, k = (i + 1) % 3, (i + 2) % 3
-    t = math.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
-    q[i] = 0.5 * t
-    t = 0.5 / t
-    q[3] = (m[k, j] - m[j, k]) * t
-    q[j] = (m[j, i] + m[i, j]) * t
-    q[k] = (m[k, i] + m[i, k]) * t
-    return q
