@@ -60,11 +60,6 @@ class RunConfig:
         positive("run.gravity", self.gravity)
 
 
-
-
-
-
-
 @dataclass(frozen=True)
 class Config:
     run: RunConfig
