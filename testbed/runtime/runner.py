@@ -42,7 +42,6 @@ class RunOutcome:
     metrics: dict
     error: str | None = None        # set when the run stopped early (divergence, a failing plugin, interrupt)
     interrupted: bool = False
-    failed: bool = False            # a plugin (estimator, controller) failed during the run
 
 
 def build_simulation(config, terrain: Terrain | str | None = None) -> Simulation:
@@ -260,7 +259,6 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
                     break
     except (SimulationDiverged, PluginFailure) as error:
         outcome.error = str(error)
-        outcome.failed = isinstance(error, PluginFailure)
     except (KeyboardInterrupt, SystemError) as error:
         if not is_interrupt(error):
             raise
