@@ -3,5 +3,6 @@
 The sample types are what estimators and controllers receive."""
 
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
+from sensors.sensor import Sensor, SensorContext
 
-__all__ = ["AccelSample", "EncoderSample", "FootSample", "ImuSample", "Sample"]
+__all__ = ["AccelSample", "EncoderSample", "FootSample", "ImuSample", "Sample", "Sensor", "SensorContext"]

@@ -2,7 +2,7 @@
 
 `import testbed` stays light, for every layer below imports it: the public names load on first
 use (PEP 562): `testbed.run`, `testbed.load`, `testbed.replay`, `testbed.Result`, `testbed.Dataset`
-(testbed/api.py), `testbed.Controller`, `testbed.Terrain` and `testbed.PostureLaw`.
+(testbed/api.py), `testbed.Controller`, `testbed.Terrain`, `testbed.ContactModel` and `testbed.PostureLaw`.
 
 It also registers the gymnasium environment `HexapodTestbed-v0` (testbed/gym_env.py) without
 importing gymnasium (a tenth of a second): at once when gymnasium is already imported, else the
@@ -19,6 +19,7 @@ _EXPORTS = {
     "Dataset": "testbed.api",
     "Controller": "testbed.control.controller",
     "Terrain": "testbed.world.terrain",
+    "ContactModel": "testbed.world.contact",
     "PostureLaw": "testbed.control.posture",
 }
 GYM_ENV_ID = "HexapodTestbed-v0"

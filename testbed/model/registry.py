@@ -46,8 +46,8 @@ class Registry:
     def __init__(self, kind: str, group: str, check: Callable[[Any], bool], expected: str):
         self.kind = kind
         self.group = GROUP_PREFIX + group
-        self._check = check
-        self._expected = expected
+        self.accepts = check
+        self.expected = expected
         self._loaded: dict[str, Any] = {}
 
     @classmethod
@@ -93,8 +93,8 @@ class Registry:
                 obj = getattr(obj, name, None)
                 if obj is None:
                     raise PluginError(f"{self.kind} '{spec}': module '{module_name}' has no '{attribute}'")
-            if not self._check(obj):
-                raise PluginError(f"{self.kind} '{spec}' is not {self._expected}")
+            if not self.accepts(obj):
+                raise PluginError(f"{self.kind} '{spec}' is not {self.expected}")
             self._loaded[spec] = obj
         return self._loaded[spec]
 

@@ -143,3 +143,20 @@ def test_the_recording_names_each_part_with_its_file_hash_and_package(plugin_dir
     assert parts["controller"]["module_sha256"] == hashlib.sha256((plugin_dir / "bad_plugins.py").read_bytes()).hexdigest()
     assert parts["terrain"]["target"] == "testbed.world.terrain:FlatTerrain"
     assert parts["terrain"]["distribution"] == "hexapod-testbed" and parts["terrain"]["version"]
+
+
+def test_each_kind_names_a_base_class_a_user_can_import():
+    """The wrong-kind error says which class to subclass; that name imports as written."""
+    import importlib
+
+    from estimators.registry import ESTIMATORS
+    from sensors.sensor import SENSORS
+    from testbed.control.controller import CONTROLLERS
+    from testbed.control.posture import POSTURE_LAWS
+    from testbed.world.contact import CONTACT_MODELS
+    from testbed.world.terrain import TERRAINS
+
+    for registry in (ESTIMATORS, SENSORS, CONTROLLERS, POSTURE_LAWS, CONTACT_MODELS, TERRAINS):
+        module, _, name = registry.expected.removeprefix("a subclass of ").rpartition(".")
+        base = getattr(importlib.import_module(module), name)
+        assert registry.accepts(type("Part", (base,), {}))
