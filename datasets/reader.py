@@ -146,14 +146,17 @@ class Recording:
             sample_class = _importable(metadata.get("sample_class"))
             if sample_class is not None:
                 decoders[topic] = partial(_decode_each, partial(codec.decode_plugin_sample, sample_class))
-        tagged = []
+        samples, sequences, log_times = [], [], []
         for topic, decode in decoders.items():
             entries = self.messages.get(topic, [])
             if entries:
-                log_ns, sequences, payloads = zip(*entries)
-                tagged += zip(sequences, log_ns, decode(payloads))
-        tagged.sort(key=lambda item: item[:2])     # the recorder numbers samples in handing order
-        return [sample for _, _, sample in tagged]
+                topic_log_times, topic_sequences, payloads = zip(*entries)
+                samples += decode(payloads)
+                sequences += topic_sequences
+                log_times += topic_log_times
+        # The recorder numbers samples in handing order: by sequence, then log time.
+        order = np.lexsort((np.array(log_times, dtype=np.int64), np.array(sequences, dtype=np.int64)))
+        return list(map(samples.__getitem__, order.tolist()))
 
     def estimates(self) -> list[Estimate]:
         return self._decoded(schemas.ESTIMATE.name, codec.decode_estimate)

@@ -8,19 +8,28 @@ live estimator of the same name and config therefore produces bit-identical esti
 
 from __future__ import annotations
 
+import multiprocessing
+import signal
 import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TypeVar
 
 from datasets import codec, schemas
-from datasets.reader import REPLAY_TOPICS, Recording, read_recording
+from datasets.reader import Recording, read_recording
 from datasets.recorder import DatasetWriter
-from datasets.scoring import score_run
+from datasets.scoring import ScoringTruth, score_run
 from estimators.base import Estimate, run_estimator
-from estimators.registry import make_estimator
+from estimators.registry import make_estimator, resolve_estimator
 from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
+SAMPLE_TOPICS = frozenset({schemas.SENSOR_PREFIX})
+SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -35,13 +44,14 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None)
     """Replay `path` through `estimator_name`; with `out`, also write the run with the new
     estimates as a dataset of its own."""
     started = time.perf_counter()
-    recording = read_recording(path, topics=None if out is not None else REPLAY_TOPICS)
-    config = recording.config().replace(run={"estimator": estimator_name})
-    recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
-    estimator = make_estimator(estimator_name, config)
-    samples = recording.samples()
-    estimates = run_estimator(estimator, samples)
-    truth = recording.scoring_truth()
+    with in_background(read_scoring_truth, path) as scoring_truth:
+        recording = read_recording(path, topics=None if out is not None else sample_topics(estimator_name))
+        config = recording.config().replace(run={"estimator": estimator_name})
+        recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
+        estimator = make_estimator(estimator_name, config)
+        samples = recording.samples()
+        estimates = run_estimator(estimator, samples)
+        truth = scoring_truth()
     metrics = score_run(config, truth, estimates)
     sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0
     wall = time.perf_counter() - started
@@ -50,6 +60,30 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None)
     if out is not None:
         write_replayed(recording, Path(out), config, estimates, metrics)
     return ReplayResult(metrics, estimates, len(samples), recording.truncation_note())
+
+
+def sample_topics(estimator_spec: str) -> frozenset[str]:
+    """The topics of the samples the estimator reads (`Estimator.sample_types`)."""
+    types = resolve_estimator(estimator_spec).sample_types
+    return SAMPLE_TOPICS if types is None else frozenset(codec.sample_topic(kind).name for kind in types)
+
+
+def read_scoring_truth(path: str | Path) -> ScoringTruth:
+    return read_recording(path, topics=SCORING_TOPICS).scoring_truth()
+
+
+@contextmanager
+def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
+    """`function(*args)` computed in a forked process on another core while the caller goes on;
+    yields the call that waits for its value (or raises its exception). Computed inline where
+    processes cannot be forked. The process ignores SIGINT: the caller handles an interruption."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        value = function(*args)
+        yield lambda: value
+        return
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
+        yield pool.submit(function, *args).result
 
 
 def write_replayed(recording: Recording, out: Path, config: Config, estimates: list[Estimate], metrics: dict) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -59,6 +59,8 @@ class Estimator(abc.ABC):
     """
 
     name: ClassVar[str] = ""
+    # The sample classes `update` reads; the live run and replay give it only those (None: all).
+    sample_types: ClassVar[tuple[type, ...] | None] = None
     _body_from_imu: np.ndarray | None = None
 
     def __init__(self, imu_rotation: np.ndarray | None = None):
@@ -76,6 +78,12 @@ class Estimator(abc.ABC):
         elif isinstance(sample, FootSample):
             self._update_feet(sample)
         return None
+
+    def update_batch(self, samples: Sequence[Sample]) -> list[Estimate]:
+        """The estimates of time-ordered `samples`, exactly as `update` gives them one at a time.
+        Offline replay calls this; an estimator whose library has a compiled batch loop overrides
+        it with that loop."""
+        return [estimate for estimate in map(self.update, samples) if estimate is not None]
 
     def _to_body(self, vector: np.ndarray) -> np.ndarray | None:
         """The IMU vector in the body frame, or None when it is not a finite 3-vector."""
@@ -108,4 +116,4 @@ def imu_position(config) -> np.ndarray:
 
 def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
     """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
-    return [estimate for estimate in map(estimator.update, samples) if estimate is not None]
+    return estimator.update_batch(samples if isinstance(samples, Sequence) else list(samples))

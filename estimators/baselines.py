@@ -15,13 +15,16 @@ All three are fed body-frame samples (the IMU mounting rotation is applied by th
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from ahrs.filters import Madgwick, Mahony
 from vqf import VQF
 
-from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator, imu_rotation
 from estimators.config import MadgwickConfig, MahonyConfig, VqfConfig
+from sensors.samples import ImuSample, Sample
+from testbed.model import spatial as rot
 
 TINY_RATE = np.array([1e-12, 0.0, 0.0])    # rad/s, stands in for an exactly-zero gyro reading
 NO_ACCEL = np.zeros(3)                     # m/s^2, VQF skips all-zero accelerometer samples
@@ -50,6 +53,7 @@ def attitude_estimate(t: float, q: rot.Quaternion, gyro_bias: np.ndarray | None 
 
 class _AhrsEstimator(Estimator):
     """Shared stepping of ahrs' per-sample `updateIMU(q, gyr, acc, dt)`."""
+    sample_types = (ImuSample,)
 
     def __init__(self, filter_, imu_rotation: np.ndarray | None = None):
         super().__init__(imu_rotation)
@@ -105,6 +109,7 @@ class MahonyEstimator(_AhrsEstimator):
 
 class VqfEstimator(Estimator):
     name = "vqf"
+    sample_types = (ImuSample,)
 
     def __init__(self, params: VqfConfig, imu_rotation: np.ndarray | None = None):
         super().__init__(imu_rotation)
@@ -131,5 +136,43 @@ class VqfEstimator(Estimator):
             self.filter.update(np.ascontiguousarray(self._first[1]), np.ascontiguousarray(self._first[2]))
         self.filter.update(np.ascontiguousarray(gyro), np.ascontiguousarray(accel))
         bias, sigma = self.filter.getBiasEstimate()
-        return attitude_estimate(t, scalar_last(self.filter.getQuat6D()), np.array(bias, dtype=float),
-                                 sigma**2 * IDENTITY)
+        return self._estimate(t, self.filter.getQuat6D(), np.array(bias, dtype=float), sigma)
+
+    @staticmethod
+    def _estimate(t: float, q_wxyz: np.ndarray, bias: np.ndarray, bias_sigma: float) -> Estimate:
+        return attitude_estimate(t, scalar_last(q_wxyz), bias, bias_sigma**2 * IDENTITY)
+
+    def update_batch(self, samples: Sequence[Sample]) -> list[Estimate]:
+        """`update` sample by sample until the filter exists, then VQF's compiled `updateBatch`
+        over the remaining IMU samples (the same per-sample update, looped in C++)."""
+        estimates, start = [], 0
+        while self.filter is None and start < len(samples):
+            estimate = self.update(samples[start])
+            start += 1
+            if estimate is not None:
+                estimates.append(estimate)
+        readings = self._batch_readings([s for s in samples[start:] if isinstance(s, ImuSample)])
+        if readings is None:
+            return estimates + super().update_batch(samples[start:])
+        t, gyro, accel = readings
+        out = self.filter.updateBatch(gyro, accel)
+        return estimates + list(map(self._estimate, t, out["quat6D"], out["bias"], out["biasSigma"]))
+
+    def _batch_readings(self, samples: list[ImuSample]) -> tuple[list, np.ndarray, np.ndarray] | None:
+        """(times, gyro (N, 3), accel (N, 3)) in the body frame of the samples `_update_imu` would
+        use (a finite gyro; an invalid accelerometer reading as NO_ACCEL), or None when a reading
+        is not a 3-vector."""
+        try:
+            gyro, accel = (np.array([getattr(s, name) for s in samples], dtype=float).reshape(-1, 3)
+                           for name in ("gyro", "accel"))
+        except ValueError:
+            return None
+        if len(gyro) != len(samples) or len(accel) != len(samples):
+            return None
+        if self._body_from_imu is not None:
+            gyro, accel = (np.array([self._body_from_imu @ row for row in rows]).reshape(-1, 3) for rows in (gyro, accel))
+        # finite exactly when `Estimator._to_body` accepts the reading (the same sum)
+        accel[~np.isfinite(accel[:, 0] + accel[:, 1] + accel[:, 2])] = NO_ACCEL
+        valid = np.isfinite(gyro[:, 0] + gyro[:, 1] + gyro[:, 2])
+        times = [s.t for s, keep in zip(samples, valid.tolist()) if keep]
+        return times, np.ascontiguousarray(gyro[valid]), np.ascontiguousarray(accel[valid])

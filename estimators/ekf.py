@@ -101,6 +101,10 @@ def kalman_correction(P: np.ndarray, PHt: np.ndarray, S_inverse: np.ndarray, inn
     return dx, tilt_gain @ np.ascontiguousarray(PHt[0:3].T)
 
 
+# Compiled entry for the corrections made from Python (`EkfEstimator._correct`).
+apply_kalman_correction = njit(cache=True)(kalman_correction)
+
+
 @register_jitable
 def feet_correction(P: np.ndarray, measured: np.ndarray, feet: np.ndarray, legs: np.ndarray, variance: float,
                     gate: float, consider_start: int, consider_stop: int) -> tuple:
@@ -216,7 +220,8 @@ class EkfEstimator(FusionEstimator):
         nis = float(innovation @ S_inverse @ innovation)
         if not nis <= gate:
             return False, nis
-        dx, tilt_cov = kalman_correction(self.P, PHt, S_inverse, innovation, *consider_bounds(self.consider))
+        dx, tilt_cov = apply_kalman_correction(self.P, PHt, S_inverse, innovation,
+                                                *consider_bounds(self.consider))
         self._inject(dx, tilt_cov)
         return True, nis
 

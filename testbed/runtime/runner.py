@@ -183,6 +183,7 @@ class Onboard:
     def __init__(self, parts: Parts):
         self.estimator_update = _guarded(parts.estimator.update, parts.estimator_spec, "update") \
             if parts.estimator is not None else None
+        self.estimator_types = parts.estimator.sample_types if parts.estimator is not None else None
         self.controller = parts.controller
         self.controller_tick = _guarded(parts.controller.tick, parts.controller_spec, "tick")
         self.controller_spec = parts.controller_spec
@@ -194,7 +195,8 @@ class Onboard:
         estimates = []
         update = self.estimator_update
         if update is not None:
-            for sample in samples:
+            types = self.estimator_types
+            for sample in samples if types is None else [s for s in samples if isinstance(s, types)]:
                 estimate = update(sample)
                 if estimate is not None:
                     if not isinstance(estimate, Estimate):

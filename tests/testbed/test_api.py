@@ -13,6 +13,7 @@ import pytest
 import testbed
 from datasets.reader import read_recording
 from datasets.dataset import Dataset
+from estimators import Estimate, Estimator
 from estimators.registry import make_estimator
 from sensors.samples import EncoderSample, ImuSample
 from testbed.api import make_config
@@ -151,3 +152,20 @@ def test_run_takes_a_toml_file_and_part_instances(tmp_path, capsys):
     assert result.path is None and result.error is None
     assert result.metrics["sim_time_s"] == pytest.approx(0.5)
     assert result.metrics["roll_rmse_deg"] is None      # scored after the first second only
+
+
+def test_an_estimator_is_given_only_its_sample_types():
+    class ImuTypesSeen(Estimator):
+        sample_types = (ImuSample,)
+
+        def __init__(self):
+            super().__init__()
+            self.seen: list[type] = []
+
+        def update(self, sample):
+            self.seen.append(type(sample))
+            return Estimate(sample.t, np.array([0.0, 0.0, 0.0, 1.0]), 0.0, 0.0, 0.0)
+
+    estimator = ImuTypesSeen()
+    testbed.run({"run": {"duration": 0.3, "gait": "tripod"}}, estimator=estimator)
+    assert set(estimator.seen) == {ImuSample} and len(estimator.seen) == pytest.approx(300, abs=2)
