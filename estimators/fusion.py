@@ -43,11 +43,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
-from scipy.stats import chi2
 
 from testbed.model import spatial as rot
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
+from estimators.gating import chi2_quantile
 from estimators.leg_odometry import StanceTracker
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, REJECTED, Preintegration, imu_sample
@@ -211,7 +211,7 @@ class BiasStepDetector:
 
     def __init__(self, window: float, probability: float):
         self.window = window
-        self.threshold = float(chi2.ppf(probability, 2))
+        self.threshold = chi2_quantile(probability, 2)
         self.detections = 0
         self._start: float | None = None
         # The window's sums of corrections and of their covariances, a TILT_SUMS record which
@@ -261,8 +261,8 @@ class FusionEstimator(Estimator):
         self.gravity = gravity
         self.foot_radius = foot_radius
         self.imu_position = np.zeros(3) if imu_position is None else np.asarray(imu_position, dtype=float)
-        self.accel_gate = float(chi2.ppf(params.accel_gate_probability, 3))
-        self.foot_gate = float(chi2.ppf(params.foot_gate_probability, 3))
+        self.accel_gate = chi2_quantile(params.accel_gate_probability, 3)
+        self.foot_gate = chi2_quantile(params.foot_gate_probability, 3)
         self.legs = StanceTracker(geometry, params.stance_min_force, self.imu_position)
         self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
         # White accelerometer noise averaged over the window, and what a still body still shakes.

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
-from scipy.stats import chi2
 
 from estimators.base import Estimate
+from estimators.gating import chi2_quantile
 from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
 
@@ -193,4 +193,4 @@ def anees_bounds(runs: int, dof: int = 2, probability: float = 0.95) -> tuple[fl
     """Two-sided chi-square bounds of the ANEES averaged over `runs` independent runs
     (Bar-Shalom et al. 2001, section 5.4.2): runs * ANEES ~ chi2(runs * dof)."""
     tail = 0.5 * (1.0 - probability)
-    return (float(chi2.ppf(tail, runs * dof) / runs), float(chi2.ppf(1.0 - tail, runs * dof) / runs))
+    return chi2_quantile(tail, runs * dof) / runs, chi2_quantile(1.0 - tail, runs * dof) / runs

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.stats import chi2
 
 from testbed.model import spatial as rot
 from estimators.config import TerrainEstimatorConfig
+from estimators.gating import chi2_quantile
 
 # The filter's state and constants, fields by name (`TerrainFilter.record`).
 TERRAIN_FILTER = np.dtype([("x", "f8", 3),             # a, b (slopes), height (m)
@@ -193,7 +193,7 @@ class TerrainFilter:
         fields = self.record[0]
         self.q = fields["rates"]
         self.q[:] = params.slope_random_walk**2, params.slope_random_walk**2, params.height_random_walk**2
-        fields["gate"] = self.gate = float(chi2.ppf(params.change_gate_probability, 3))
+        fields["gate"] = self.gate = chi2_quantile(params.change_gate_probability, 3)
         self.P = fields["P"]
         self._x = fields["x"]
         self.started = False

@@ -3,8 +3,10 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from estimators.base import Estimate
+from estimators.gating import chi2_quantile
 from estimators.scoring import (METRIC_KEYS, EstimateArrays, TerrainTruth, anees_bounds, estimate_arrays,
                                 roll_pitch_yaw, score, support_plane_truth)
 from estimators.terrain import fit_plane, heading_terrain_angles, slopes_and_height
@@ -111,3 +113,8 @@ def test_support_plane_truth_equals_a_per_step_fit():
     assert np.array_equal(np.isnan(actual), np.isnan(expected)) and np.isfinite(expected).any()
     assert np.isnan(expected[:5]).all() and np.isnan(expected).any(axis=1).sum() > 5
     np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("probability, dof", [(0.025, 2), (0.975, 2), (0.99, 3), (0.5, 20), (0.999, 1)])
+def test_chi2_quantile_is_the_chi_square_ppf(probability, dof):
+    assert chi2_quantile(probability, dof) == pytest.approx(chi2.ppf(probability, dof), rel=1e-12)
