@@ -28,6 +28,7 @@ DOCS = Path(__file__).resolve().parents[2] / "docs"
 METRIC_COLUMNS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
                   "anees_tilt")
 COLORS = {"ekf": "C3", "ukf": "C1", "complementary": "C7", "madgwick": "C2", "mahony": "C4", "vqf": "C0"}
+SCORING_SKIP = 1.0     # s, the first second is not scored (estimators.scoring.score's default skip)
 
 
 # --- files ---------------------------------------------------------------------------------------
@@ -193,29 +194,46 @@ def _save(figure, path: Path) -> None:
 
 
 def plot_errors(replays: Sequence[ReplayResult], terrain: str, path: Path) -> None:
-    """Roll and pitch errors over time of one walk: the EKF with its 3-sigma band, and the baselines."""
-    mine = [r for r in replays if r.scenario.terrain == terrain and r.scenario.fault == "none" and r.series]
-    if not mine:
-        return
+    figure = error_figure(replays, terrain)
+    if figure is not None:
+        _save(figure, path)
+
+
+def error_figure(replays: Sequence[ReplayResult], terrain: str):
+    """Roll and pitch errors over time of one walk (the lowest seed with series): each estimator
+    once, the EKF with its 3-sigma band. The y range is that of the scored errors (after the first
+    second), so the sub-degree differences show; the start-up's wide band is cut off at it. None
+    without series of that terrain."""
+    walks = [r for r in replays if r.scenario.terrain == terrain and r.scenario.fault == "none" and r.series]
+    if not walks:
+        return None
+    seed = min(r.scenario.seed for r in walks)
+    mine = list({r.estimator: r for r in walks if r.scenario.seed == seed}.values())
     figure, axes = _figure(2, 1, (9, 5.5))
     for row, angle in enumerate(("roll", "pitch")):
         axis = axes[row, 0]
+        scored_errors = [0.0]
         for replay in mine:
             series = replay.series
             error = np.degrees(series.error[:, row])
+            scored = series.t >= SCORING_SKIP
+            scored_errors.append(float(np.nanmax(np.abs(error[scored]), initial=0.0)))
             if replay.estimator == "ekf" and series.sigma is not None:
                 band = 3 * np.degrees(series.sigma[:, row])
+                scored_errors.append(float(np.nanmax(band[scored], initial=0.0)))
                 axis.fill_between(series.t, -band, band, color=COLORS["ekf"], alpha=0.15, label="ekf ±3σ")
             wide = replay.estimator == "ekf"
             axis.plot(series.t, error, lw=1.2 if wide else 0.7, color=COLORS.get(replay.estimator),
                       label=replay.estimator, zorder=3 if wide else 2)
-        axis.axvline(1.0, color="k", lw=0.5, ls=":")
+        limit = 1.15 * max(scored_errors) or 1.0
+        axis.set_ylim(-limit, limit)
+        axis.axvline(SCORING_SKIP, color="k", lw=0.5, ls=":")
         axis.set_ylabel(f"{angle} error (°)")
         axis.grid(alpha=0.3)
-    axes[0, 0].set_title(f"{terrain}, seed {mine[0].scenario.seed}: estimate − truth (first second not scored)")
+    axes[0, 0].set_title(f"{terrain}, seed {seed}: estimate − truth (first second not scored)")
     axes[1, 0].set_xlabel("time (s)")
     axes[0, 0].legend(ncol=4, fontsize=8, loc="upper right")
-    _save(figure, path)
+    return figure
 
 
 def plot_rmse(rows: Sequence[Row], path: Path) -> None:
