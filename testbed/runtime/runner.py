@@ -42,6 +42,7 @@ class RunOutcome:
     metrics: dict
     error: str | None = None        # set when the run stopped early (divergence, a failing plugin, interrupt)
     interrupted: bool = False
+    note: str | None = None         # why a run that went well ended early (the robot left the terrain)
 
 
 def build_simulation(config, terrain: Terrain | str | None = None) -> Simulation:
@@ -83,6 +84,15 @@ class SupportTracker:
             resting[late] = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius <= GROUND_TOLERANCE
             polygon, margin, _ = stance_support(*args, resting)
         return polygon, margin
+
+
+def beyond_footprint(truth, footprint: tuple[float, float, float, float]) -> bool:
+    """Whether the body's centre or a foot's centre lies beyond the built terrain (x_min, x_max,
+    y_min, y_max), seen from above."""
+    x_min, x_max, y_min, y_max = footprint
+    points = np.vstack([truth.body_position[:2], truth.foot_positions[:, :2]])
+    return bool(((points[:, 0] < x_min) | (points[:, 0] > x_max) | (points[:, 1] < y_min)
+                 | (points[:, 1] > y_max)).any())
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
@@ -233,6 +243,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, terrain=sim.terrain)
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
+    footprint = sim.terrain.footprint()
     outcome = RunOutcome(metrics={})
     recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
@@ -254,6 +265,12 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
             for step in range(steps):
                 sim.step(command.joint_targets)
                 command = tick_once()
+                if step % FALL_CHECK_PERIOD == 0 and beyond_footprint(sim.truth(), footprint):
+                    metrics.left_terrain = True
+                    body = sim.truth().body_position
+                    outcome.note = (f"the robot left the built terrain at t = {sim.time:.3f} s (body at x = {body[0]:.2f}, "
+                                    f"y = {body[1]:.2f} m): the run ends here")
+                    break
                 if sim.body_tilt() > FALL_TILT or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                     metrics.fell = True
                     break
