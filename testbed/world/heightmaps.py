@@ -63,7 +63,7 @@ def _read_png(path: str) -> np.ndarray:
         raise ConfigError(f"terrain.heightmap: cannot read {path} as a PNG image: {error}") from None
     if mode not in ("I;16", "I;16B", "I;16L") and not (mode == "I" and pixels.ndim == 2 and pixels.min() >= 0
                                                          and pixels.max() <= 65535):
-        raise ConfigError(f"terrain.heightmap: {path} is a {mode} image, not 16-bit grayscale")
+        raise ConfigError(f"terrain.heightmap: {path} is a mode {mode} image, not 16-bit grayscale")
     return pixels.astype(np.float64)
 
 
