@@ -90,9 +90,9 @@ def beyond_footprint(truth, footprint: tuple[float, float, float, float]) -> boo
     """Whether the body's centre or a foot's centre lies beyond the built terrain (x_min, x_max,
     y_min, y_max), seen from above."""
     x_min, x_max, y_min, y_max = footprint
-    points = np.vstack([truth.body_position[:2], truth.foot_positions[:, :2]])
-    return bool(((points[:, 0] < x_min) | (points[:, 0] > x_max) | (points[:, 1] < y_min)
-                 | (points[:, 1] > y_max)).any())
+    points = truth.foot_positions.tolist()      # seven points: plain Python is cheaper than numpy here
+    points.append(truth.body_position.tolist())
+    return any(not (x_min <= x <= x_max and y_min <= y <= y_max) for x, y, _ in points)
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:

@@ -35,9 +35,10 @@ def course(seed=1, **terrain) -> CourseTerrain:
 def test_heights_at_known_points():
     terrain = course()
     up = 0.8 * TAN12                     # the ramp's climb: 0.1700 m
+    # ramp [0.5, 1.3], step at 1.9, stairs [2.4, 3.0], rough [3.0, 3.6], ramp down [3.6, 4.1]
     points = {-0.9: 0.0, 0.4: 0.0, 0.9: 0.4 * TAN12, 1.5: up, 2.0: up + 0.03, 2.5: up, 2.7: up - 0.03,
-              2.9: up - 0.06, 3.65: up - 0.09 - 0.15 * math.tan(math.radians(10.0)),
-              4.4: up - 0.09 - 0.5 * math.tan(math.radians(10.0))}
+              2.9: up - 0.06, 3.65: up - 0.06 - 0.05 * math.tan(math.radians(10.0)),
+              4.4: up - 0.06 - 0.5 * math.tan(math.radians(10.0))}
     xy = np.array([[x, 0.1] for x in points])
     np.testing.assert_allclose(terrain.height(xy), list(points.values()), atol=1e-12)
     normal = terrain.normal(np.array([[0.9, 0.0], [3.65, 0.0], [1.5, 0.0]]))
@@ -46,16 +47,25 @@ def test_heights_at_known_points():
                                atol=1e-12)
 
 
-@pytest.mark.parametrize("joint", [0.5, 1.3, 3.4, 3.9])
-def test_ramp_joints_are_continuous_in_the_boxes_and_the_analytic_height(joint):
-    terrain = course()
+DOWN = [{"kind": "flat", "length": 1.0}, {"kind": "ramp", "length": 0.5, "angle_deg": -15.0},
+        {"kind": "flat", "length": 1.0}]
+
+
+@pytest.mark.parametrize("segments, joint", [(SEGMENTS, 0.5), (SEGMENTS, 1.3), (SEGMENTS, 4.1), (DOWN, 0.5),
+                                             (DOWN, 1.0)])
+def test_ramp_joints_are_continuous_in_the_boxes_and_the_analytic_height(segments, joint):
+    terrain = course(segments=segments)
     xy = np.array([[joint - 1e-7, 0.05], [joint + 1e-7, 0.05]])
     heights = terrain.height(xy)
     assert heights[1] - heights[0] == pytest.approx(0.0, abs=1e-6)
-    # The union of boxes has its top there too: just above it is outside, just below inside.
+    # The union of boxes has its top there too, and is solid below it: just above the surface is
+    # outside, anywhere down to 5 cm below it inside.
     above = np.column_stack([xy, heights + 1e-5])
-    below = np.column_stack([xy, heights - 1e-5])
-    assert (terrain.closest(above)[0] > 0).all() and (terrain.closest(below)[0] < 0).all()
+    assert (terrain.closest(above)[0] > 0).all()
+    for depth in (1e-5, 1e-3, 0.01, 0.05):
+        for dx in (-0.01, -1e-4, 1e-4, 0.01):
+            point = np.array([[joint + dx, 0.05, terrain.height(np.array([[joint + dx, 0.05]]))[0] - depth]])
+            assert terrain.closest(point)[0][0] < 0
 
 
 def test_stairs_rise_by_steps_times_rise():
@@ -73,7 +83,7 @@ def test_rough_patches_are_seeded_bounded_and_differ_between_seeds():
     rough = lambda terrain: next(piece for piece in terrain.pieces if piece.kind == "rough").tops
     np.testing.assert_array_equal(rough(a), rough(b))
     assert not np.array_equal(rough(a), rough(c))
-    level = 0.8 * TAN12 - 0.06 - 0.03
+    level = 0.8 * TAN12 + 0.03 - 0.09
     assert np.abs(rough(a) - level).max() <= 0.02 and np.abs(rough(a) - level).max() > 0.015
     assert rough(a).shape == (6, 12)
 
@@ -147,7 +157,8 @@ def test_no_box_candidates_count_as_absent():
 
 def test_a_course_without_rough_patches_is_followed_by_compiled_code():
     terrain = course(segments=SEGMENTS[:6])
-    assert terrain.candidate_rule() is not None and len(terrain.boxes) == 10
+    assert terrain.candidate_rule() is not None
+    assert len(terrain.boxes) == 10         # 7 level pieces, the ramp and its fill
 
 
 def test_last_level_continues_to_the_extent_and_the_footprint_is_the_extent():

@@ -17,14 +17,28 @@ COURSE = [{"kind": "flat", "length": 0.6}, {"kind": "ramp", "length": 0.6, "angl
 FAST_START = {"calibration_tilt_deg": 0.0}
 
 
+def recorded_boxes_match(path, terrain) -> None:
+    """The /terrain topic of a recording holds the boxes the run simulated."""
+    from datasets.reader import read_recording
+    from scipy.spatial.transform import Rotation
+    boxes = read_recording(path).terrain()
+    np.testing.assert_allclose(boxes.centers, terrain.boxes.centers, atol=1e-9)
+    np.testing.assert_allclose(boxes.sizes, 2 * terrain.boxes.half_extents, atol=1e-9)
+    np.testing.assert_allclose(Rotation.from_quat(boxes.quaternions).as_matrix(), terrain.boxes.rotations, atol=1e-9)
+
+
 @pytest.mark.parametrize("contact", ["compliant", "dart"])
-def test_a_walk_on_a_course_stays_up(contact):
+def test_a_walk_on_a_course_stays_up(tmp_path, contact):
+    from datasets.recorder import McapRecorder
+    from testbed.runtime.runner import build_parts
     # The course starts under the robot's rear feet: the front feet reach the ramp at 0.1 m.
     cfg = config.load(overrides={"run": {**WALK, "terrain": "course", "contact": contact}, "gait": FAST_START,
                                  "terrain": {"course": COURSE, "course_start": -0.2}})
-    metrics = run(cfg).metrics
+    parts = build_parts(cfg)
+    metrics = run(cfg, McapRecorder(tmp_path / "run.mcap"), parts=parts).metrics
     assert metrics["fell"] is False and metrics["left_terrain"] is False
     assert metrics["tilt_max_deg"] < 5.0 and metrics["distance_m"] > 0.1
+    recorded_boxes_match(tmp_path / "run.mcap", parts.sim.terrain)
 
 
 @pytest.mark.parametrize("contact", ["compliant", "dart"])

@@ -74,7 +74,8 @@ def _rough_piece(segment: CourseSegment, x: float, level: float, width: float, r
 
 
 def piece_boxes(piece: Piece, y0: float, y1: float, bottom: float) -> Boxes:
-    """The boxes of one piece over [y0, y1], reaching down to `bottom`."""
+    """The boxes of one piece over [y0, y1], reaching down to `bottom` (a ramp: its rotated box
+    and a level fill below it)."""
     if piece.kind == LEVEL:
         return axis_aligned_boxes(piece.x0, piece.x1, y0, y1, np.array([piece.z0]), bottom)
     if piece.kind == ROUGH:
@@ -84,6 +85,14 @@ def piece_boxes(piece: Piece, y0: float, y1: float, bottom: float) -> Boxes:
         gx0, gy0 = np.meshgrid(xs[:-1], ys[:-1], indexing="ij")
         gx1, gy1 = np.meshgrid(xs[1:], ys[1:], indexing="ij")
         return axis_aligned_boxes(gx0.ravel(), gx1.ravel(), gy0.ravel(), gy1.ravel(), piece.tops.ravel(), bottom)
+    return _joined([_ramp_box(piece, y0, y1, bottom),
+                    axis_aligned_boxes(piece.x0, piece.x1, y0, y1, np.array([min(piece.z0, piece.z1)]), bottom)])
+
+
+def _ramp_box(piece: Piece, y0: float, y1: float, bottom: float) -> Boxes:
+    """The rotated box whose top face is the ramp. Its ends are square to the slope, so each leaves
+    a wedge open below one end of the top face: the level fill box under the ramp (down to its
+    lower end's level) closes it."""
     c, s = math.cos(piece.angle), math.sin(piece.angle)
     rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # R_y(-angle): z onto the normal
     thickness = max(piece.z0, piece.z1) - bottom
