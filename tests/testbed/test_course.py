@@ -213,3 +213,13 @@ def test_a_rough_cell_smaller_than_the_foot_is_refused():
 def test_the_registry_names_the_new_terrains():
     from testbed.world.terrain import TERRAINS
     assert {"course", "heightmap"} <= set(TERRAINS.names())
+
+
+def test_the_example_course_loads_and_climbs_as_documented():
+    from pathlib import Path
+    cfg = config.load(Path(__file__).parents[2] / "examples" / "course.toml")
+    terrain = make_terrain("course", cfg, np.random.default_rng(0))
+    assert cfg.terrain.course_end == pytest.approx(7.3)
+    # 12 degrees up over 0.8 m, a 3 cm step up, 3 stairs of 3 cm down, 10 degrees down over 0.8 m
+    end = 0.8 * TAN12 + 0.03 - 0.09 - 0.8 * math.tan(math.radians(10.0))
+    np.testing.assert_allclose(terrain.height(np.array([[7.95, 0.0], [6.5, 1.0]])), end, atol=1e-12)
