@@ -22,6 +22,9 @@ from testbed.world.terrain.geometry import BASE_DEPTH, Boxes, EVERY_BOX, axis_al
 
 LEVEL, RAMP, ROUGH = "level", "ramp", "rough"
 MAX_BLOCKS = 20000      # boxes DART and the recorder can take (as rough ground)
+# m beyond a foot's diameter within which boxes are a foot's candidates: more than the support
+# check's ground tolerance (1 mm).
+CANDIDATE_REACH = 0.01
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,25 @@ def _ramp_box(piece: Piece, y0: float, y1: float, bottom: float) -> Boxes:
     return Boxes((top_middle - half[2] * rotation[:, 2])[None], half[None], rotation[None])
 
 
+def _check_walkable(segment: CourseSegment, where: str, foot_radius: float, swing_height: float) -> None:
+    """Treads and blocks at least as wide as the foot; rises, drops and block heights the swing
+    clears (it lifts the foot swing_height above the ground the gait plans on)."""
+    if segment.kind in ("step", "stairs"):
+        rise = segment.height if segment.kind == "step" else segment.rise
+        require(abs(rise) <= swing_height + 1e-12,
+                f"{where}: a {abs(rise) * 100:.1f} cm {'rise' if rise > 0 else 'drop'} is more than the legs "
+                f"can step over with gait.swing_height {swing_height * 100:.1f} cm")
+    if segment.kind == "stairs":
+        require(segment.tread >= 2 * foot_radius, f"{where}: tread {segment.tread} m is narrower than the foot "
+                                                  f"({2 * foot_radius} m, robot.foot_radius x 2)")
+    if segment.kind == "rough":
+        require(segment.cell >= 2 * foot_radius, f"{where}: cell {segment.cell} m is smaller than the foot "
+                                                 f"({2 * foot_radius} m, robot.foot_radius x 2)")
+        require(segment.amplitude <= swing_height + 1e-12,
+                f"{where}: amplitude {segment.amplitude * 100:.1f} cm is more than the legs can step over "
+                f"with gait.swing_height {swing_height * 100:.1f} cm")
+
+
 def _joined(parts: list[Boxes]) -> Boxes:
     return Boxes(*(np.concatenate([getattr(part, name) for part in parts])
                    for name in ("centers", "half_extents", "rotations")))
@@ -120,7 +142,7 @@ class CourseTerrain(Terrain):
         super().__init__(config, _joined([piece_boxes(piece, y0, y1, lowest - BASE_DEPTH) for piece in self.pieces]))
         rough = [piece.cell for piece in self.pieces if piece.kind == ROUGH]
         # Few boxes: every box is a candidate. Rough patches: the boxes near each point, by bins.
-        self._bins = BoxBins(self.boxes, min(rough), 2 * foot_radius + 0.01) if rough else None
+        self._bins = BoxBins(self.boxes, min(rough), 2 * foot_radius + CANDIDATE_REACH) if rough else None
 
     @classmethod
     def from_config(cls, config, rng: np.random.Generator) -> "CourseTerrain":
@@ -128,6 +150,7 @@ class CourseTerrain(Terrain):
 
     @classmethod
     def check_config(cls, config) -> None:
+        """The course fits the extent, and the robot can walk on each segment."""
         terrain = config.terrain
         x_min, x_max, y_min, y_max = terrain.extent
         require(len(terrain.course) > 0, "terrain.course is empty: give it segments "
@@ -137,25 +160,11 @@ class CourseTerrain(Terrain):
                 f"[{x_min}, {x_max})")
         require(terrain.course_end <= x_max + 1e-9,
                 f"terrain.course ends at x = {terrain.course_end:.3f} m, beyond terrain.extent's x_max {x_max} m")
-        foot, swing = config.robot.foot_radius, config.gait.swing_height
-        blocks = 0
         for index, segment in enumerate(terrain.course):
-            where = f"terrain.course[{index}] ({segment.kind})"
-            if segment.kind in ("step", "stairs"):
-                rise = segment.height if segment.kind == "step" else segment.rise
-                require(abs(rise) <= swing + 1e-12,
-                        f"{where}: a {abs(rise) * 100:.1f} cm {'rise' if rise > 0 else 'drop'} is more than the legs "
-                        f"can step over with gait.swing_height {swing * 100:.1f} cm")
-            if segment.kind == "stairs":
-                require(segment.tread >= 2 * foot, f"{where}: tread {segment.tread} m is narrower than the foot "
-                                                   f"({2 * foot} m, robot.foot_radius x 2)")
-            if segment.kind == "rough":
-                require(segment.cell >= 2 * foot, f"{where}: cell {segment.cell} m is smaller than the foot "
-                                                  f"({2 * foot} m, robot.foot_radius x 2)")
-                require(segment.amplitude <= swing + 1e-12,
-                        f"{where}: amplitude {segment.amplitude * 100:.1f} cm is more than the legs can step over "
-                        f"with gait.swing_height {swing * 100:.1f} cm")
-                blocks += math.ceil(segment.length / segment.cell) * math.ceil((y_max - y_min) / segment.cell)
+            _check_walkable(segment, f"terrain.course[{index}] ({segment.kind})", config.robot.foot_radius,
+                            config.gait.swing_height)
+        blocks = sum(math.ceil(segment.length / segment.cell) * math.ceil((y_max - y_min) / segment.cell)
+                     for segment in terrain.course if segment.kind == "rough")
         if blocks > MAX_BLOCKS:
             raise ConfigError(f"terrain.course's rough segments make {blocks} blocks, more than {MAX_BLOCKS}")
 
