@@ -127,3 +127,23 @@ def test_the_map_travels_in_the_recording_and_run_from_needs_no_file(tmp_path, m
     np.testing.assert_array_equal(restored.terrain.heightmap_heights(), heights)
     assert restored.terrain.heightmap_origin == () and restored.run.seed == 9
     np.testing.assert_array_equal(Dataset(tmp_path / "run.mcap").config.terrain.heightmap_heights(), heights)
+
+
+def test_a_sweep_run_carries_the_map_and_its_worker_needs_no_file(tmp_path, monkeypatch):
+    from datasets.reader import read_recording
+    from testbed.tools import sweep
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    heights = wavy()
+    np.save(tmp_path / "map.npy", heights)
+    base = {"terrain": {"heightmap": str(tmp_path / "map.npy")}, "run": {"duration": 0.3}}
+    points = sweep.expand_grid(["heightmap"], [4], ["none"], ["default"])
+    (spec,) = sweep.make_specs(points, tmp_path / "runs", base)
+    np.save(tmp_path / "map.npy", heights + 0.001)          # the same path, another map: another hash
+    (changed,) = sweep.make_specs(points, tmp_path / "runs", base)
+    assert changed.config_hash != spec.config_hash
+    (tmp_path / "map.npy").unlink()
+    row = sweep.execute(spec)
+    assert row["error"] == "" and row["fell"] is False
+    boxes = read_recording(spec.path).terrain()
+    np.testing.assert_allclose(np.sort(boxes.centers[:, 2] + boxes.sizes[:, 2] / 2), np.sort(heights.ravel()),
+                               atol=1e-12)
