@@ -95,6 +95,12 @@ def beyond_footprint(truth, footprint: tuple[float, float, float, float]) -> boo
     return any(not (x_min <= x <= x_max and y_min <= y <= y_max) for x, y, _ in points)
 
 
+def left_terrain_note(truth) -> str:
+    x, y = truth.body_position[:2]
+    return (f"the robot left the built terrain at t = {truth.t:.3f} s (body at x = {x:.2f}, y = {y:.2f} m): "
+            f"the run ends here")
+
+
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
     polygon, margin = support.polygon_and_margin(truth, command.swinging)
     # Positional: a named tuple built from keywords costs twice as much, at every step.
@@ -267,9 +273,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
                 command = tick_once()
                 if step % FALL_CHECK_PERIOD == 0 and beyond_footprint(sim.truth(), footprint):
                     metrics.left_terrain = True
-                    body = sim.truth().body_position
-                    outcome.note = (f"the robot left the built terrain at t = {sim.time:.3f} s (body at x = {body[0]:.2f}, "
-                                    f"y = {body[1]:.2f} m): the run ends here")
+                    outcome.note = left_terrain_note(sim.truth())
                     break
                 if sim.body_tilt() > FALL_TILT or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                     metrics.fell = True
