@@ -44,7 +44,7 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from datasets import schemas
+from datasets import heightmap_store, schemas
 from datasets.reader import RECORD_HEADER, chunk_records, message_index_pairs, message_payloads
 from testbed.model.errors import ConfigError, UserError
 from testbed.runtime import config as config_module
@@ -103,6 +103,8 @@ class Dataset:
             try:
                 reader = make_reader(stream)
                 self._metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+                self._attachments = {record.name: record.data for record in reader.iter_attachments()
+                                     if record.name == heightmap_store.ATTACHMENT}
                 summary = reader.get_summary()
             except (McapError, ValueError, EOFError) as error:
                 raise UserError(f"{self.path} is not a readable MCAP file ({error})") from None
@@ -124,7 +126,7 @@ class Dataset:
         except (KeyError, json.JSONDecodeError):
             raise UserError(f"{self.path} holds no testbed run config: not a testbed dataset") from None
         try:
-            return config_module.from_dict(data)
+            return config_module.from_dict(heightmap_store.restored_config(data, self._attachments, self.path))
         except ConfigError as error:
             raise UserError(f"{self.path}: its recorded config does not fit this testbed version ({error})") from None
 

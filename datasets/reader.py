@@ -30,7 +30,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
 
-from datasets import codec, schemas
+from datasets import codec, heightmap_store, schemas
 from datasets.scoring import ScoringTruth
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
@@ -87,10 +87,12 @@ class Recording:
     # --- run description ----------------------------------------------------------------------
 
     def config_dict(self) -> dict[str, Any]:
+        """The recorded config; a recorded height map is restored to a file it names."""
         try:
-            return json.loads(self.metadata["config"]["json"])
+            config = json.loads(self.metadata["config"]["json"])
         except (KeyError, json.JSONDecodeError):
             raise UserError(f"{self.path} holds no testbed run config: not a testbed dataset") from None
+        return heightmap_store.restored_config(config, self.attachments, self.path)
 
     def config(self) -> Config:
         try:

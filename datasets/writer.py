@@ -46,7 +46,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from datasets import codec, schemas
+from datasets import codec, heightmap_store, schemas
 from datasets.signals import sigint_deferred
 
 if TYPE_CHECKING:
@@ -155,6 +155,8 @@ class DatasetWriter:
         created = time.time_ns()
         writer.add_attachment(created, 0, "config.toml", "application/toml", description.config_toml.encode())
         writer.add_attachment(created, 0, "robot.urdf", "application/xml", description.urdf.encode())
+        for name, (media_type, data) in description.attachments.items():
+            writer.add_attachment(created, 0, name, media_type, data)
 
     def _write(self, messages: list[Message], flush: bool) -> None:
         add = self._writer.add_message
@@ -190,13 +192,15 @@ class RunDescription:
     """What `describe_run` writes, in plain strings (it crosses to the writer process)."""
 
     def __init__(self, run_info: dict[str, str], config_json: str, config_toml: str, urdf: str,
-                 versions: dict[str, str]):
+                 versions: dict[str, str], attachments: dict[str, tuple[str, bytes]] | None = None):
         self.run_info, self.config_json, self.config_toml, self.urdf = run_info, config_json, config_toml, urdf
         self.versions = versions
+        self.attachments = attachments or {}    # more files the run needs: name -> (media type, data)
 
     @classmethod
     def of(cls, run_info: dict[str, str], config: "Config", urdf: str) -> "RunDescription":
-        return cls(run_info, json.dumps(config.to_dict(), sort_keys=True), config.to_toml(), urdf, package_versions())
+        return cls(run_info, json.dumps(config.to_dict(), sort_keys=True), config.to_toml(), urdf, package_versions(),
+                   heightmap_store.attachments_of(config))
 
 
 class Link:

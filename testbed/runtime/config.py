@@ -27,7 +27,7 @@ from testbed.control.gait import GAITS
 from testbed.model.robot_config import RobotConfig
 from testbed.world.config import ContactConfig, TerrainConfig
 from testbed.world.contact import CONTACT_MODELS
-from testbed.world.terrain import TERRAINS
+from testbed.world.terrain import TERRAINS, check_terrain_config
 from testbed.model.errors import ConfigError
 from testbed.model.validation import finite, non_negative, positive, require
 
@@ -73,6 +73,7 @@ class Config:
 
     def __post_init__(self) -> None:
         self._check_stride()
+        check_terrain_config(self)
 
     def _check_stride(self) -> None:
         """A commanded speed whose stride does not fit the legs' workspace is a config error."""
@@ -157,10 +158,12 @@ def _build(cls: type, data: dict[str, Any], path: str = "") -> Any:
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise ConfigError(f"unknown config key '{path}{unknown[0]}'")
-    missing = [name for name in names if name not in data]
+    optional = {field.name for field in dataclasses.fields(cls)
+                if field.default is not dataclasses.MISSING or field.default_factory is not dataclasses.MISSING}
+    missing = [name for name in names if name not in data and name not in optional]
     if missing:
         raise ConfigError(f"missing config key '{path}{missing[0]}'")
-    return cls(**{name: _convert(data[name], hints[name], path + name) for name in names})
+    return cls(**{name: _convert(data[name], hints[name], path + name) for name in names if name in data})
 
 
 def default_dict() -> dict[str, Any]:

@@ -34,6 +34,7 @@ class RunMetrics:
         self.terrain = terrain
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
         self.fell = False
+        self.left_terrain = False     # a foot or the body passed beyond the built terrain: the run ended there
         self._normal_sum = 0.0
         self._normal_count = 0
         self.min_margin = np.inf
@@ -83,6 +84,7 @@ class RunMetrics:
         target = self.config.gait.target
         metrics = {
             "fell": self.fell,
+            "left_terrain": self.left_terrain,
             "weight_support_ratio": ratio,
             "distance_m": float(np.linalg.norm(displacement)),
             "mean_speed_mps": self._mean_speed(float(np.linalg.norm(displacement)), sim_time),

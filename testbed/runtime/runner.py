@@ -42,6 +42,7 @@ class RunOutcome:
     metrics: dict
     error: str | None = None        # set when the run stopped early (divergence, a failing plugin, interrupt)
     interrupted: bool = False
+    note: str | None = None         # why a run that went well ended early (the robot left the terrain)
 
 
 def build_simulation(config, terrain: Terrain | str | None = None) -> Simulation:
@@ -83,6 +84,21 @@ class SupportTracker:
             resting[late] = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius <= GROUND_TOLERANCE
             polygon, margin, _ = stance_support(*args, resting)
         return polygon, margin
+
+
+def beyond_footprint(truth, footprint: tuple[float, float, float, float]) -> bool:
+    """Whether the body's centre or a foot's centre lies beyond the built terrain (x_min, x_max,
+    y_min, y_max), seen from above."""
+    x_min, x_max, y_min, y_max = footprint
+    points = truth.foot_positions.tolist()      # seven points: plain Python is cheaper than numpy here
+    points.append(truth.body_position.tolist())
+    return any(not (x_min <= x <= x_max and y_min <= y <= y_max) for x, y, _ in points)
+
+
+def left_terrain_note(truth) -> str:
+    x, y = truth.body_position[:2]
+    return (f"the robot left the built terrain at t = {truth.t:.3f} s (body at x = {x:.2f}, y = {y:.2f} m): "
+            f"the run ends here")
 
 
 def make_tick(sim: Simulation, truth, samples, command, estimates, support: SupportTracker) -> Tick:
@@ -235,6 +251,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, terrain=sim.terrain)
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
+    footprint = sim.terrain.footprint()
     outcome = RunOutcome(metrics={})
     recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
@@ -256,6 +273,10 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
             for step in range(steps):
                 sim.step(command.joint_targets)
                 command = tick_once()
+                if step % FALL_CHECK_PERIOD == 0 and beyond_footprint(sim.truth(), footprint):
+                    metrics.left_terrain = True
+                    outcome.note = left_terrain_note(sim.truth())
+                    break
                 if sim.body_tilt() > FALL_TILT or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                     metrics.fell = True
                     break

@@ -137,6 +137,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
           f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
           f"weight support {m['weight_support_ratio'] if m['weight_support_ratio'] is None else round(m['weight_support_ratio'], 4)}")
+    if outcome.note:
+        print(f"testbed: note: {outcome.note}", file=sys.stderr)
     if outcome.interrupted:
         print(f"testbed: {outcome.error}", file=sys.stderr)
         return EXIT_INTERRUPTED

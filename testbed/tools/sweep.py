@@ -35,6 +35,7 @@ from itertools import product
 from pathlib import Path
 from typing import Any, Protocol
 
+from datasets import heightmap_store
 from testbed.model.registry import file_stem
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
@@ -71,6 +72,9 @@ class RunSpec:
     config: dict[str, Any]      # the resolved config (Config.to_dict)
     config_hash: str
     sensors: str
+    # Files the run needs beside its config (the height map), name -> (media type, data): a worker
+    # restores them, so it needs no copy of the user's files.
+    attachments: dict[str, tuple[str, bytes]] = field(default_factory=dict)
 
 
 def expand_grid(terrains: Sequence[str], seeds: Sequence[int], estimators: Sequence[str],
@@ -88,7 +92,11 @@ def point_config(point: GridPoint, base: dict[str, Any] | None = None, run: dict
 
 
 def config_hash(cfg: Config) -> str:
-    return hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    """The config's, and the height map's content when it names one."""
+    digest = hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode())
+    for _, data in heightmap_store.attachments_of(cfg).values():
+        digest.update(data)
+    return digest.hexdigest()[:16]
 
 
 def make_specs(points: Iterable[GridPoint], folder: Path, base: dict[str, Any] | None = None,
@@ -99,7 +107,7 @@ def make_specs(points: Iterable[GridPoint], folder: Path, base: dict[str, Any] |
     for point in points:
         cfg = point_config(point, base, run)
         specs.append(RunSpec(point.name, str(folder / f"{point.name}.mcap"), cfg.to_dict(), config_hash(cfg),
-                             point.sensors))
+                             point.sensors, heightmap_store.attachments_of(cfg)))
     return specs
 
 
@@ -111,7 +119,8 @@ def execute(spec: RunSpec) -> dict[str, Any]:
     from testbed.runtime.runner import run
 
     started, cpu_started = time.perf_counter(), time.process_time()
-    cfg = config_module.from_dict(spec.config)
+    attachments = {name: data for name, (_, data) in spec.attachments.items()}
+    cfg = config_module.from_dict(heightmap_store.restored_config(spec.config, attachments, Path(spec.path)))
     outcome = run(cfg, McapRecorder(spec.path))
     if outcome.interrupted:
         raise RuntimeError(f"{spec.name} was interrupted")

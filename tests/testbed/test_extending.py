@@ -89,7 +89,7 @@ def run_cli(arguments: list[str], package: Path, cwd: Path) -> subprocess.Comple
 
 def test_registered_names_are_listed_beside_the_built_ins(package, tmp_path):
     help_text = " ".join(run_cli(["run", "--help"], package, tmp_path).stdout.split())
-    assert "flat | plateau | rough" in help_text
+    assert "flat | heightmap | plateau | rough" in help_text
     assert "pairs" in help_text and "gyro_only" in help_text
 
 

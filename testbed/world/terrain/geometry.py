@@ -1,16 +1,16 @@
-"""Terrains: flat, slope, step and rough ground.
+"""The geometry every terrain is made of: boxes, the signed distance of points to them, spheres
+indenting them, and the rules that name the boxes near a point.
 
-Every terrain is a union of boxes (dartpy has no height-field binding and cannot build meshes from
-arrays), and also answers analytic height h(x, y) and normal n(x, y) queries, which the tests check
-against the DART shapes. The compliant contact uses `closest`, the signed distance from points to
-the union of boxes with the surface normal there, so a foot meeting the riser of a step is pushed
-back by the riser rather than lifted vertically onto the top.
+The compliant contact uses the signed distance from points to the union of boxes with the surface
+normal there, so a foot meeting the riser of a step is pushed back by the riser rather than lifted
+vertically onto the top.
 
 The distance laws are written once in numpy (`distances_to_boxes`, `sphere_contacts`); compiled
 kernels beside them (`box_distance`, `sphere_contact_arrays`, `closest_distance`) serve the
 per-step contact and support checks, which ask six points against a few boxes every physics step.
 Kernels take the boxes as a structured array of `BOX` records and a terrain's candidate boxes as a
-one-element `CANDIDATE_RULE` array: fields by name, never by position.
+one-element `CANDIDATE_RULE` array: fields by name, never by position. A candidate index of
+NO_BOX (-1) pads a row of candidates that holds fewer boxes than its neighbours: it names no box.
 """
 
 from __future__ import annotations
@@ -22,18 +22,15 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
-from testbed.world.config import TerrainConfig
-from testbed.model.errors import ConfigError, PluginError
-from testbed.model.registry import Registry
 from testbed.world.records import one_record, the_record
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
-TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
+NO_BOX = -1        # a candidate index naming no box
 
 BOX = np.dtype([("center", np.float64, (3,)), ("half_extents", np.float64, (3,)), ("rotation", np.float64, (3, 3))])
 
 # How compiled code finds Terrain.candidates (`candidates_by_rule`): every one of `boxes` boxes, or
-# the blocks around each point on RoughTerrain's grid (x0, y0, cell, nx, ny).
+# the blocks around each point on a grid of blocks (x0, y0, cell, nx, ny: GridTerrain).
 EVERY_BOX, BLOCKS_AROUND = 0, 1
 CANDIDATE_RULE = np.dtype([("kind", np.int64), ("boxes", np.int64), ("x0", np.float64), ("y0", np.float64),
                            ("cell", np.float64), ("nx", np.int64), ("ny", np.int64)])
@@ -64,7 +61,7 @@ class Boxes:
         return records
 
 
-def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, bottom: float) -> Boxes:
+def axis_aligned_boxes(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, bottom: float) -> Boxes:
     """Boxes spanning [x0, x1] x [y0, y1] arrays with the given top heights and a common bottom."""
     x0, x1, y0, y1, tops = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (x0, x1, y0, y1, tops))
     centers = np.column_stack([(x0 + x1) / 2, (y0 + y1) / 2, (tops + bottom) / 2])
@@ -72,13 +69,28 @@ def _axis_aligned(x0: float, x1: float, y0: float, y1: float, tops: np.ndarray, 
     return Boxes(centers, half, np.broadcast_to(np.eye(3), (len(centers), 3, 3)).copy())
 
 
+_CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+
+
+def box_footprints(boxes: Boxes) -> np.ndarray:
+    """(N, 4) x_min, x_max, y_min, y_max of each box seen from above."""
+    corners = boxes.centers[:, None, :] + np.einsum("nij,nkj->nki", boxes.rotations,
+                                                    _CORNER_SIGNS[None, :, :] * boxes.half_extents[:, None, :])
+    low, high = corners[..., :2].min(axis=1), corners[..., :2].max(axis=1)
+    return np.column_stack([low[:, 0], high[:, 0], low[:, 1], high[:, 1]])
+
+
 # ---------------------------------------------------------------- the distance to a box
 def distances_to_boxes(points: np.ndarray, boxes: Boxes, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance (N, K) from each point to each of its candidate boxes (N, K indices) and the
     outward unit normal (N, K, 3) of that box's nearest surface. Negative distance means inside.
     Outside a box: the distance from its nearest point, the normal along it. Inside: the face
-    nearest the point (the first of equally near ones)."""
+    nearest the point (the first of equally near ones). NO_BOX: infinite distance, zero normal."""
     points, candidates = np.asarray(points, dtype=float), np.asarray(candidates)
+    missing = candidates == NO_BOX
+    if missing.any():
+        distance, normal = distances_to_boxes(points, boxes, np.where(missing, 0, candidates))
+        return np.where(missing, np.inf, distance), np.where(missing[..., None], 0.0, normal)
     rotation = boxes.rotations[candidates]                                      # (N, K, 3, 3)
     local = np.einsum("nkji,nkj->nki", rotation, points[:, None, :] - boxes.centers[candidates])
     excess = np.abs(local) - boxes.half_extents[candidates]
@@ -128,7 +140,10 @@ def box_distances(points, boxes, candidates):
     distance, normal = np.empty((n, k)), np.empty((n, k, 3))
     for i in range(n):
         for j in range(k):
-            distance[i, j] = box_distance(points[i], boxes[candidates[i, j]], normal[i, j])
+            if candidates[i, j] == NO_BOX:
+                distance[i, j], normal[i, j] = np.inf, 0.0
+            else:
+                distance[i, j] = box_distance(points[i], boxes[candidates[i, j]], normal[i, j])
     return distance, normal
 
 
@@ -146,11 +161,13 @@ def closest_distance(point, boxes, candidates):
     """signed_distance_to_boxes's distance of one point to the union of its `candidates` (a row of
     box indices), compiled."""
     normal = np.empty(3)
-    best = np.inf
+    best, first = np.inf, True
     for j in range(len(candidates)):
+        if candidates[j] == NO_BOX:
+            continue
         distance = box_distance(point, boxes[candidates[j]], normal)
-        if j == 0 or distance < best or (np.isnan(distance) and not np.isnan(best)):
-            best = distance
+        if first or distance < best or (np.isnan(distance) and not np.isnan(best)):
+            best, first = distance, False
     return best
 
 
@@ -178,6 +195,8 @@ def sphere_contact_arrays(spheres, radius, boxes, candidates):
     depth, blended, normal = np.zeros(n), np.zeros((n, 3)), np.empty(3)
     for i in range(n):
         for j in range(k):
+            if candidates[i, j] == NO_BOX:
+                continue
             indentation = radius - box_distance(spheres[i], boxes[candidates[i, j]], normal)
             if indentation > 0.0:
                 depth[i] = max(depth[i], indentation)
@@ -186,155 +205,6 @@ def sphere_contact_arrays(spheres, radius, boxes, candidates):
         if length > 0.0:
             blended[i] /= length
     return depth, blended
-
-
-# ---------------------------------------------------------------- terrains
-class Terrain:
-    """Base class of every terrain, built-in or a user's plugin: a union of boxes (what DART and
-    the compliant contact collide with) with analytic height and normal (what the tests, the
-    metrics and the start placement ask).
-
-    A subclass calls `super().__init__(config, boxes)` with the `[terrain]` config section and its
-    `Boxes`, implements `height(xy) -> (N,)` and, unless the ground is level, `normal(xy) -> (N, 3)`.
-    `from_config(config, rng)` builds it from the run's Config and the terrain's random stream;
-    the default calls `cls(config.terrain)`.
-    """
-
-    name = "terrain"
-
-    def __init__(self, config: TerrainConfig, boxes: Boxes):
-        self.config = config
-        self.boxes = boxes
-        self._every_box = np.arange(len(boxes))
-
-    @classmethod
-    def from_config(cls, config, rng: np.random.Generator) -> "Terrain":
-        return cls(config.terrain)
-
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        raise NotImplementedError(f"{type(self).__name__} must implement height(xy)")
-
-    def normal(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.atleast_2d(xy)
-        return np.tile([0.0, 0.0, 1.0], (len(xy), 1))
-
-    def candidates(self, points: np.ndarray) -> np.ndarray:
-        """(N, K) indices of the boxes that may hold the surface nearest each point."""
-        return np.broadcast_to(self._every_box, (len(points), len(self._every_box)))
-
-    def candidate_rule(self) -> np.ndarray | None:
-        """`candidates` for compiled code: a one-element CANDIDATE_RULE array for
-        `candidates_by_rule`, which gives the same boxes in the same order; None for a subclass
-        with candidates of its own."""
-        if type(self).candidates is not Terrain.candidates:
-            return None
-        return candidate_rule(EVERY_BOX, boxes=len(self.boxes))
-
-    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        points = np.atleast_2d(np.asarray(points, dtype=float))
-        return signed_distance_to_boxes(points, self.boxes, self.candidates(points))
-
-    def sphere_contacts(self, centers: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Indentation (N,) of spheres in the terrain and the contact normal (N, 3): `sphere_contacts`."""
-        centers = np.atleast_2d(np.asarray(centers, dtype=float))
-        return sphere_contacts(centers, float(radius), self.boxes, self.candidates(centers))
-
-
-class FlatTerrain(Terrain):
-    name = "flat"
-
-    def __init__(self, config: TerrainConfig):
-        x0, x1, y0, y1 = config.extent
-        super().__init__(config, _axis_aligned(x0, x1, y0, y1, np.zeros(1), -BASE_DEPTH))
-
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        return np.zeros(len(np.atleast_2d(xy)))
-
-
-class SlopeTerrain(Terrain):
-    """An inclined plane through the origin, z = x tan(slope): uphill along +x for a positive slope."""
-
-    name = "slope"
-
-    def __init__(self, config: TerrainConfig):
-        self.angle = np.radians(config.slope_deg)
-        x0, x1, y0, y1 = config.extent
-        c, s = np.cos(self.angle), np.sin(self.angle)
-        rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # R_y(-angle): z onto the normal
-        x_mid, y_mid = (x0 + x1) / 2, (y0 + y1) / 2
-        half = np.array([(x1 - x0) / (2 * c), (y1 - y0) / 2, BASE_DEPTH / 2])
-        top_mid = np.array([x_mid, y_mid, x_mid * np.tan(self.angle)])
-        center = top_mid - half[2] * rotation[:, 2]
-        super().__init__(config, Boxes(center[None], half[None], rotation[None]))
-
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        return np.atleast_2d(xy)[:, 0] * np.tan(self.angle)
-
-    def normal(self, xy: np.ndarray) -> np.ndarray:
-        n = np.array([-np.sin(self.angle), 0.0, np.cos(self.angle)])
-        return np.tile(n, (len(np.atleast_2d(xy)), 1))
-
-
-class StepTerrain(Terrain):
-    """The paper's Figure 8: level ground at z = 0 up to x = step_edge_x, then z = step_height."""
-
-    name = "step"
-
-    def __init__(self, config: TerrainConfig):
-        x0, x1, y0, y1 = config.extent
-        edge, rise = config.step_edge_x, config.step_height
-        _require_inside(edge, x0, x1)
-        bottom = min(0.0, rise) - BASE_DEPTH
-        boxes = _axis_aligned([x0, edge], [edge, x1], [y0, y0], [y1, y1], np.array([0.0, rise]), bottom)
-        super().__init__(config, boxes)
-
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.atleast_2d(xy)
-        return np.where(xy[:, 0] < self.config.step_edge_x, 0.0, self.config.step_height)
-
-
-class RoughTerrain(Terrain):
-    """Square blocks of side rough_cell with top heights uniform in +-rough_amplitude."""
-
-    name = "rough"
-
-    def __init__(self, config: TerrainConfig, rng: np.random.Generator):
-        x0, x1, y0, y1 = config.extent
-        cell = config.rough_cell
-        self.nx, self.ny = int(np.ceil((x1 - x0) / cell)), int(np.ceil((y1 - y0) / cell))
-        tops = rng.uniform(-config.rough_amplitude, config.rough_amplitude, (self.nx, self.ny))
-        xs, ys = x0 + cell * np.arange(self.nx), y0 + cell * np.arange(self.ny)
-        gx, gy = np.meshgrid(xs, ys, indexing="ij")
-        near_start = np.hypot(gx + cell / 2, gy + cell / 2) < config.flat_start_radius
-        tops[near_start] = 0.0
-        self.tops = tops
-        bottom = -config.rough_amplitude - BASE_DEPTH
-        boxes = _axis_aligned(gx.ravel(), gx.ravel() + cell, gy.ravel(), gy.ravel() + cell, tops.ravel(), bottom)
-        super().__init__(config, boxes)
-        self._grid = candidate_rule(BLOCKS_AROUND, boxes=len(boxes), x0=x0, y0=y0, cell=cell, nx=self.nx, ny=self.ny)
-
-    @classmethod
-    def from_config(cls, config, rng: np.random.Generator) -> "RoughTerrain":
-        return cls(config.terrain, rng)
-
-    def _cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x0, _, y0, _ = self.config.extent
-        ix = np.clip(np.floor((xy[:, 0] - x0) / self.config.rough_cell).astype(int), 0, self.nx - 1)
-        iy = np.clip(np.floor((xy[:, 1] - y0) / self.config.rough_cell).astype(int), 0, self.ny - 1)
-        return ix, iy
-
-    def height(self, xy: np.ndarray) -> np.ndarray:
-        ix, iy = self._cell(np.atleast_2d(xy))
-        return self.tops[ix, iy]
-
-    def candidates(self, points: np.ndarray) -> np.ndarray:
-        """The block under each point and its eight neighbours (clipped at the terrain's edge)."""
-        return candidates_by_rule(np.asarray(points, dtype=float), self._grid)
-
-    def candidate_rule(self) -> np.ndarray | None:
-        if type(self).candidates is not RoughTerrain.candidates:
-            return None
-        return self._grid
 
 
 @njit(cache=True)
@@ -364,19 +234,3 @@ def candidates_by_rule(points, rule):
             candidates[i, j] = j
     return candidates
 
-
-def _require_inside(value: float, low: float, high: float) -> None:
-    if not low < value < high:
-        raise ConfigError(f"terrain.step_edge_x {value} must lie inside the terrain extent ({low}, {high})")
-
-
-TERRAINS = Registry.of_subclasses("terrain", "terrains", Terrain)
-
-
-def make_terrain(spec: str, config, rng: np.random.Generator) -> Terrain:
-    """The terrain named by `spec`: `cls.from_config(config, rng)` with the run's Config and the
-    terrain's random stream."""
-    terrain = TERRAINS.build(spec, config, rng)
-    if not isinstance(terrain, Terrain) or len(terrain.boxes) == 0:
-        raise PluginError(f"terrain '{spec}' built no boxes")
-    return terrain
