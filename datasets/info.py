@@ -9,7 +9,7 @@ from datasets.reader import Recording, read_recording
 
 PACKAGE = "hexapod-testbed"
 METRIC_ORDER = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
-                "anees_tilt", "fell", "weight_support_ratio", "min_stability_margin_m", "distance_m",
+                "anees_tilt", "fell", "left_terrain", "weight_support_ratio", "min_stability_margin_m", "distance_m",
                 "realtime_factor", "sim_time_s", "wall_s")
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from unittest import mock
 
 from testbed.control.gait import GAITS
+from testbed.world.terrain import TERRAINS
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
 from testbed.model.errors import UserError
@@ -96,7 +97,7 @@ class Profile:
 
 def add_subcommands(subparsers) -> None:
     parser = subparsers.add_parser("profile", help="time per simulated second of each stage, and DART's bare step")
-    parser.add_argument("--terrain", default="step", help="flat | slope | step | rough (default step)")
+    parser.add_argument("--terrain", default="step", help=f"{' | '.join(TERRAINS.names())} (default step)")
     parser.add_argument("--contact", help="compliant | dart (default: the config's)")
     parser.add_argument("--gait", default="tripod", help=f"{' | '.join(GAITS.names())} (default tripod)")
     parser.add_argument("--estimator", default="ekf", help="none | ekf | ukf | ... (default ekf)")
