@@ -73,14 +73,15 @@ def _size(stream: IO[str]) -> dict[str, int]:
 class ProgressRecorder:
     """A recorder that also shows the simulated time on a progress bar (implements `Recorder`)."""
 
-    def __init__(self, inner: "Recorder", stream: IO[str] | None = None):
+    def __init__(self, inner: "Recorder", stream: IO[str] | None = None, desc: str = "run"):
         self.inner = inner
+        self.desc = desc
         self.path = getattr(inner, "path", None)       # the file recorded to, if any
         self.stream = stream
         self.bar: SimTimeBar | None = None
 
     def start(self, config: "Config", urdf: str, terrain: "Terrain") -> None:
-        self.bar = SimTimeBar(config.run.duration, "run", self.stream)
+        self.bar = SimTimeBar(config.run.duration, self.desc, self.stream)
         self.inner.start(config, urdf, terrain)
 
     def record(self, tick: "Tick") -> None:

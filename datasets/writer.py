@@ -155,6 +155,8 @@ class DatasetWriter:
         created = time.time_ns()
         writer.add_attachment(created, 0, "config.toml", "application/toml", description.config_toml.encode())
         writer.add_attachment(created, 0, "robot.urdf", "application/xml", description.urdf.encode())
+        if description.urdf:
+            self._encoder.describe_robot(description.urdf)
 
     def _write(self, messages: list[Message], flush: bool) -> None:
         add = self._writer.add_message
