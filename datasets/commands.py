@@ -28,6 +28,7 @@ if TYPE_CHECKING:       # the recording side is imported by the handlers that us
 EXIT_OK = 0
 RUNS_FOLDER = Path("runs")
 NO_RECORDING = "none"       # --out none
+LIVE_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
 
 
 # --- run -------------------------------------------------------------------------------------
@@ -40,6 +41,10 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar (there is none when stderr is not a terminal)")
     parser.add_argument("--rerun", type=Path, metavar="RUN.rrd", help="also write a Rerun recording of the run")
     parser.add_argument("--spawn", action="store_true", help="open the Rerun viewer on the run when it ends")
+    parser.add_argument("--rerun-live", action="store_true",
+                        help="stream the run to a Rerun viewer while it runs (spawned, or --rerun-connect's)")
+    parser.add_argument("--rerun-connect", metavar="URL",
+                        help="with --rerun-live: the viewer's address, e.g. rerun+http://127.0.0.1:9876/proxy")
     parser.add_argument("--from", dest="from_mcap", type=Path, metavar="RUN.mcap",
                         help="start from the config recorded in RUN.mcap (other options override it)")
 
@@ -66,13 +71,28 @@ def recorder_for(args: argparse.Namespace, config: "Config") -> "Recorder":
     if not records(args) and (args.rerun is not None or args.spawn):
         raise UserError("--rerun and --spawn convert the recorded file: they need a recording (drop --no-record)")
     recorder: "Recorder" = NullRecorder()
+    _check_live(args)
     if records(args):
         out = args.out if args.out is not None else default_run_path(config)
         _check_output(out, "--out")
         if args.rerun is not None:
             _check_output(args.rerun, "--rerun")
         recorder = McapRecorder(out)
+    if args.rerun_live:
+        from datasets.rerun_export import LiveRerun
+
+        recorder = LiveRerun(recorder, args.rerun_connect)
     return ProgressRecorder(recorder) if show_progress(args.quiet) else recorder
+
+
+def _check_live(args: argparse.Namespace) -> None:
+    if args.rerun_connect is not None and not args.rerun_live:
+        raise UserError("--rerun-connect goes with --rerun-live")
+    if args.rerun_connect is not None and not args.rerun_connect.startswith(LIVE_SCHEMES):
+        raise UserError(f"--rerun-connect expects rerun+http://HOST:PORT/proxy, got '{args.rerun_connect}'")
+    if args.rerun_live and args.rerun_connect is None and not _has_display():
+        raise UserError("--rerun-live: no display to open a viewer on; start one elsewhere (`rerun`) and give "
+                        "--rerun-connect rerun+http://HOST:9876/proxy")
 
 
 def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
@@ -182,9 +202,13 @@ def _export(mcap_path: str | Path, rrd: Path) -> None:
     print(f"wrote {rrd}")
 
 
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def spawn_viewer(rrd: Path) -> None:
     """Open the Rerun viewer on `rrd` in the background, when there is a display to open it on."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    if not _has_display():
         print(f"testbed: no display: not opening a viewer (run `rerun {rrd}` where there is one)", file=sys.stderr)
         return
     subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True,
