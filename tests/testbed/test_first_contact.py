@@ -107,3 +107,24 @@ def test_help_and_bad_names_answer_without_loading_the_simulation(argv):
     if int(code) == 2:
         assert len(done.stderr.splitlines()) == 1
     assert elapsed < 5.0          # a generous bound for a shared machine; about 0.1 s when idle
+
+
+@pytest.mark.parametrize("gait, config, expected", [
+    (None, None, "tripod"),            # as `testbed bench` walks
+    ("ripple", None, "ripple"),
+    (None, "[run]\ngait = \"ripple\"\n", None),     # the config file's gait stands
+])
+def test_sweep_walks_the_tripod_unless_told_otherwise(tmp_path, gait, config, expected):
+    from argparse import Namespace
+
+    from testbed.tools import sweep, sweep_cli
+
+    path = None
+    if config is not None:
+        path = tmp_path / "c.toml"
+        path.write_text(config)
+    keys = sweep_cli._run_keys(Namespace(duration=2.0, gait=gait, config=path))
+    assert keys.get("gait") == expected
+    (spec,) = sweep.make_specs([sweep.GridPoint("flat", 0, "none", "default")], tmp_path,
+                               sweep_cli._base(path), keys)
+    assert spec.config["run"]["gait"] == (expected or "ripple")
