@@ -107,17 +107,28 @@ def export_ros2(dataset: Dataset, out: Path) -> list[Path]:
                _estimate_pose_messages(dataset)]
     messages = sorted((message for stream in streams for message in stream), key=lambda message: message[0])
     out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("wb") as stream:
-        writer = Ros2Writer(stream)
-        registered = {}
-        for log_ns, topic, datatype, message in [(0, "/tf_static", "tf2_msgs/TFMessage", _imu_mounting(dataset)),
-                                                 *messages]:
-            if datatype not in registered:
-                registered[datatype] = writer.register_msgdef(schema_name(datatype), message_definition(datatype))
-            writer.write_message(topic, registered[datatype], message, log_time=log_ns, publish_time=log_ns)
-        writer.add_metadata("run", dataset.run_info)
-        writer.finish()
+    partial = out.with_name(out.name + ".partial")       # renamed to `out` once complete
+    try:
+        with partial.open("wb") as stream:
+            _write_ros2(stream, [(0, "/tf_static", "tf2_msgs/TFMessage", _imu_mounting(dataset)), *messages],
+                        dataset.run_info)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    partial.replace(out)
     return [out]
+
+
+def _write_ros2(stream, messages: list[tuple], run_info: dict[str, str]) -> None:
+    """(log time ns, topic, datatype, message dict) in order, each schema registered when first used."""
+    writer = Ros2Writer(stream)
+    registered = {}
+    for log_ns, topic, datatype, message in messages:
+        if datatype not in registered:
+            registered[datatype] = writer.register_msgdef(schema_name(datatype), message_definition(datatype))
+        writer.write_message(topic, registered[datatype], message, log_time=log_ns, publish_time=log_ns)
+    writer.add_metadata("run", run_info)
+    writer.finish()
 
 
 def _stamp(t: float) -> dict[str, int]:

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from testbed.model.errors import UserError
 
-EXIT_OK = 0
+EXIT_OK, EXIT_FAILED = 0, 1
 FORMATS = ("ros2", "tum", "csv")
 OUTPUTS = {"ros2": "a .mcap file", "tum": "a folder (truth.tum, estimate.tum)", "csv": "a folder (one .csv per topic)"}
 
@@ -31,10 +32,17 @@ def add_subcommands(subparsers) -> None:
 
 def cmd_export(args: argparse.Namespace) -> int:
     _check_out(args.format, args.out, args.file)
+    from google.protobuf.message import DecodeError
+
     from datasets.dataset import Dataset
     from datasets.export import export
 
-    written = export(Dataset(args.file), args.format, args.out)
+    dataset = Dataset(args.file)
+    try:
+        written = export(dataset, args.format, args.out)
+    except (DecodeError, KeyError, ValueError, OSError) as error:
+        print(f"testbed: cannot export {args.file} as {args.format}: {type(error).__name__}: {error}", file=sys.stderr)
+        return EXIT_FAILED
     print(f"wrote {args.out}" if args.format == "ros2" else f"wrote {len(written)} files to {args.out}")
     return EXIT_OK
 

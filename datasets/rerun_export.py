@@ -50,9 +50,9 @@ TRUE_COLOR, ESTIMATE_COLOR, BAND_COLOR = (40, 40, 40), (30, 110, 220), (130, 170
 XYZ_COLORS = [(220, 60, 50), (40, 160, 60), (40, 90, 220)]
 GHOST = "estimate"                  # entity and frame prefix of the estimated robot
 GHOST_RGBA = "0.12 0.43 0.86 0.35"   # the ghost's colour: ESTIMATE_COLOR, translucent
-LIVE_RATE = 50.0                    # Hz of simulated time: rows streamed live
+LIVE_RATE = 30.0                    # Hz of simulated time: rows streamed live
 TIME_TOLERANCE = 1e-9              # s: a tick this close to a row's time takes it (steps add up inexactly)
-LIVE_BATCH = 0.5                    # s of simulated time per batch sent live
+LIVE_BATCH = 1.0                    # s of simulated time per batch sent live
 
 
 def export_rrd(recording: Recording, rrd_path: str | Path) -> Path:
