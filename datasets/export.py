@@ -28,7 +28,7 @@ import pandas
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from datasets import schemas
-from datasets.dataset import Dataset
+from datasets.dataset import SUFFIXES, Dataset
 from datasets.links import LinkTree
 from testbed.model import spatial
 from testbed.model.robot import joint_names
@@ -179,16 +179,14 @@ def _imu_mounting(dataset: Dataset) -> dict[str, Any]:
 
 
 def _joint_state_messages(dataset: Dataset) -> Iterator[tuple]:
-    names = joint_names()
-    suffixes = [name.replace("joint1", "coxa").replace("joint2", "femur").replace("joint3", "tibia")
-                for name in names]
+    names, per_joint = joint_names(), SUFFIXES["positions"]       # the same joint order: leg-major
     encoders = dataset.table(schemas.ENCODERS.name)
-    for t, positions in zip(encoders.t.to_numpy(), _columns(encoders, "positions_", suffixes)):
+    for t, positions in zip(encoders.t.to_numpy(), _columns(encoders, "positions", per_joint)):
         yield to_ns(t), "/joint_states", "sensor_msgs/JointState", {
             "header": _header(t, ""), "name": names, "position": positions.tolist(), "velocity": [], "effort": []}
     state = dataset.table(schemas.TRUTH_STATE.name)
-    rows = zip(state.t.to_numpy(), _columns(state, "joint_positions_", suffixes),
-               _columns(state, "joint_velocities_", suffixes))
+    rows = zip(state.t.to_numpy(), _columns(state, "joint_positions", per_joint),
+               _columns(state, "joint_velocities", per_joint))
     for t, positions, velocities in rows:
         yield to_ns(t), "/truth/joint_states", "sensor_msgs/JointState", {
             "header": _header(t, ""), "name": names, "position": positions.tolist(),
