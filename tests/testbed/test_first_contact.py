@@ -158,3 +158,12 @@ def test_compilation_during_a_run_is_reported_apart_from_the_real_time_factor():
     assert m["compile_s"] > 0.05
     assert m["realtime_factor"] == pytest.approx(m["sim_time_s"] / m["wall_s"])
     assert m["wall_s"] + m["compile_s"] < elapsed
+
+
+def test_the_install_step_s_warm_up_says_what_it_does_and_shows_progress_on_a_terminal(tmp_path):
+    code, output = under_terminal([sys.executable, "-m", "testbed.tools.warmup"], tmp_path)
+    assert code == 0, output
+    lines = output.strip().splitlines()
+    assert lines[0].startswith("compiling kernels, first run only")
+    assert BAR.search(output) and "kernels" in lines[-1]
+    assert "Warning" not in output
