@@ -48,7 +48,7 @@ def warm_up(quiet: bool = False) -> tuple[int, float]:
 
 
 def main() -> int:
-    print("compiling kernels, first run only (a minute or two; cached for the next runs)", file=sys.stderr, flush=True)
+    print("compiling kernels, first run only (a few minutes; cached for the next runs)", file=sys.stderr, flush=True)
     count, wall = warm_up()
     print(f"compiled {count} kernels in {wall:.0f} s" if count else f"kernels already compiled ({wall:.1f} s)",
           file=sys.stderr)
