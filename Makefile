@@ -10,6 +10,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m testbed.tools.warmup
 	touch $(STAMP)
 
 # The main scenario: the tripod gait down the paper's step, the EKF estimating attitude, the posture

@@ -15,13 +15,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2
 from scipy.spatial.transform import Rotation
 
 from datasets import schemas
+from datasets.links import LinkTree
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from testbed.world.contact import FootContacts
@@ -140,8 +141,18 @@ class Encoder:
         self._contacts, self._support, self._command = encoders["Contacts"], encoders["Support"], encoders["Command"]
         self._pose = PoseInFrame(frame_id=WORLD_FRAME)
         self._pose_parts = (self._pose.timestamp, self._pose.pose.position, self._pose.pose.orientation)
-        self._transform = FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME)
+        self._links: LinkTree | None = None
+        self._transforms = FrameTransforms()
+        self._transform = self._transforms.transforms.add(parent_frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME)
         self._transform_parts = (self._transform.timestamp, self._transform.translation, self._transform.rotation)
+
+    def describe_robot(self, urdf: str) -> None:
+        """Publish every link's frame on /tf from now on: the joints of `urdf` (`links.LinkTree`),
+        each at the joint positions of the truth state."""
+        self._links = LinkTree.from_urdf(urdf)
+        for joint in self._links.joints:
+            transform = self._transforms.transforms.add(parent_frame_id=joint.parent, child_frame_id=joint.child)
+            transform.translation.x, transform.translation.y, transform.translation.z = joint.translation
 
     def sample(self, sample: Sample) -> tuple[str, bytes]:
         """(topic name, message bytes) of one sensor sample."""
@@ -157,8 +168,11 @@ class Encoder:
     def feet(self, truth: Truth) -> bytes:
         return self._feet.encode_fields_of(truth)
 
-    def transform(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> bytes:
-        return self._stamped_pose(self._transform, self._transform_parts, t_ns, _flat(position), _flat(quaternion))
+    def transforms(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray,
+                   joint_positions: np.ndarray | None = None) -> bytes:
+        """The /tf message: world -> body, and with `describe_robot` each joint's parent -> child link."""
+        return self._frame_transforms(t_ns, _flat(position), _flat(quaternion),
+                                      None if joint_positions is None else _flat(joint_positions))
 
     def truth_state(self, truth: Truth) -> bytes:
         return self._state.encode_fields_of(truth)
@@ -223,15 +237,26 @@ class Encoder:
     def _heavy_messages(self, ticks: "TickColumns") -> Iterator[tuple]:
         """Each heavy tick's transform, state, contacts, support and command messages."""
         state = ticks.state
-        rows = zip(state.rows("t"), state.rows("body_position"), state.rows("quaternion"),
+        rows = zip(state.rows("t"), state.rows("body_position"), state.rows("quaternion"), state.rows("joint_positions"),
                    self._state.encode_rows(state), self._contacts.encode_rows(ticks.contacts),
                    self._support.encode_rows(ticks.support), self._stamped_rows(self._command, ticks.commands))
-        for t, position, quaternion, state_data, contacts_data, support_data, (command_ns, command_data) in rows:
+        for t, position, quaternion, joints, state_data, contacts_data, support_data, (command_ns, command_data) in rows:
             t_ns = to_ns(t)
-            transform = self._stamped_pose(self._transform, self._transform_parts, t_ns, position, quaternion)
+            transform = self._frame_transforms(t_ns, position, quaternion, joints)
             yield ((schemas.TF, t_ns, transform, 0), (schemas.TRUTH_STATE, t_ns, state_data, 0),
                    (schemas.TRUTH_CONTACTS, t_ns, contacts_data, 0), (schemas.TRUTH_SUPPORT, t_ns, support_data, 0),
                    (schemas.COMMAND, command_ns, command_data, 0))
+
+    def _frame_transforms(self, t_ns: int, position: list, quaternion: list, joint_positions: list | None) -> bytes:
+        """Fill and serialise the FrameTransforms message: the body's pose, then (with a link
+        tree) each joint's rotation, all stamped `t_ns`."""
+        joints = self._transforms.transforms[1:]
+        if self._links is not None and joint_positions is not None:
+            seconds, nanos = divmod(t_ns, NS_PER_S)
+            for transform, rotation in zip(joints, self._links.rotations(joint_positions)):
+                transform.timestamp.seconds, transform.timestamp.nanos = seconds, nanos
+                transform.rotation.x, transform.rotation.y, transform.rotation.z, transform.rotation.w = rotation
+        return self._stamped_pose(self._transforms, self._transform_parts, t_ns, position, quaternion)
 
     @staticmethod
     def _stamped_pose(message, parts, t_ns: int, position: list, orientation: list) -> bytes:
@@ -352,6 +377,11 @@ def _field_names(dataclass_type: type) -> tuple[str, ...]:
 
 
 _ESTIMATE_FIELDS = _field_names(Estimate)
+
+
+def robot_description_message(urdf: str) -> bytes:
+    """The /robot_description message: the URDF at t = 0."""
+    return schemas.RobotDescriptionMsg(t=0.0, data=urdf).SerializeToString()
 
 
 def terrain_message(centers: np.ndarray, half_extents: np.ndarray, rotations: np.ndarray, name: str) -> bytes:

@@ -15,41 +15,84 @@ import subprocess
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from datasets.reader import read_description
-from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
-from testbed.runtime.config import Config
+from datasets.progress import show_progress
 from testbed.model.errors import UserError
 from testbed.model.registry import file_stem
 
+if TYPE_CHECKING:       # the recording side is imported by the handlers that use it: `--help` stays fast
+    from testbed.runtime.config import Config
+    from testbed.runtime.recording import Recorder
+
 EXIT_OK = 0
 RUNS_FOLDER = Path("runs")
+NO_RECORDING = "none"       # --out none
+LIVE_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
 
 
 # --- run -------------------------------------------------------------------------------------
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, metavar="RUN.mcap",
-                        help="record the run here (default runs/<UTC time>_<terrain>_<estimator>.mcap)")
+                        help="record the run here (default runs/<UTC time>_<terrain>_<estimator>.mcap; "
+                             "'none': do not record)")
+    parser.add_argument("--no-record", action="store_true", help="run without writing an MCAP file (as --out none)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar (there is none when stderr is not a terminal)")
     parser.add_argument("--rerun", type=Path, metavar="RUN.rrd", help="also write a Rerun recording of the run")
     parser.add_argument("--spawn", action="store_true", help="open the Rerun viewer on the run when it ends")
+    parser.add_argument("--rerun-live", action="store_true",
+                        help="stream the run to a Rerun viewer while it runs (spawned, or --rerun-connect's)")
+    parser.add_argument("--rerun-connect", metavar="URL",
+                        help="with --rerun-live: the viewer's address, e.g. rerun+http://127.0.0.1:9876/proxy")
     parser.add_argument("--from", dest="from_mcap", type=Path, metavar="RUN.mcap",
                         help="start from the config recorded in RUN.mcap (other options override it)")
 
 
 def config_from_mcap(path: str | Path) -> dict[str, Any]:
     """The resolved config recorded in a run's file, as a plain dict (`testbed.runtime.config.from_dict`)."""
+    from datasets.reader import read_description
+
     return read_description(path).config_dict()
 
 
-def recorder_for(args: argparse.Namespace, config: Config) -> McapRecorder:
-    """The recorder of a `testbed run`: to --out, or to the default path under runs/."""
-    out = args.out if args.out is not None else default_run_path(config)
-    _check_output(out, "--out")
-    if args.rerun is not None:
-        _check_output(args.rerun, "--rerun")
-    return McapRecorder(out)
+def records(args: argparse.Namespace) -> bool:
+    """Whether `testbed run` writes an MCAP file: not with --no-record or --out none."""
+    return not args.no_record and (args.out is None or str(args.out) != NO_RECORDING)
+
+
+def recorder_for(args: argparse.Namespace, config: "Config") -> "Recorder":
+    """The recorder of a `testbed run`: to --out, or to the default path under runs/; with
+    --no-record (or --out none) a NullRecorder; with a progress bar on a terminal unless --quiet."""
+    from datasets.progress import ProgressRecorder
+    from datasets.recorder import McapRecorder
+    from testbed.runtime.recording import NullRecorder
+
+    if not records(args) and (args.rerun is not None or args.spawn):
+        raise UserError("--rerun and --spawn convert the recorded file: they need a recording (drop --no-record)")
+    recorder: "Recorder" = NullRecorder()
+    _check_live(args)
+    if records(args):
+        out = args.out if args.out is not None else default_run_path(config)
+        _check_output(out, "--out")
+        if args.rerun is not None:
+            _check_output(args.rerun, "--rerun")
+        recorder = McapRecorder(out)
+    if args.rerun_live:
+        from datasets.rerun_export import LiveRerun
+
+        recorder = LiveRerun(recorder, args.rerun_connect)
+    return ProgressRecorder(recorder) if show_progress(args.quiet) else recorder
+
+
+def _check_live(args: argparse.Namespace) -> None:
+    if args.rerun_connect is not None and not args.rerun_live:
+        raise UserError("--rerun-connect goes with --rerun-live")
+    if args.rerun_connect is not None and not args.rerun_connect.startswith(LIVE_SCHEMES):
+        raise UserError(f"--rerun-connect expects rerun+http://HOST:PORT/proxy, got '{args.rerun_connect}'")
+    if args.rerun_live and args.rerun_connect is None and not _has_display():
+        raise UserError("--rerun-live: no display to open a viewer on; start one elsewhere (`rerun`) and give "
+                        "--rerun-connect rerun+http://HOST:9876/proxy")
 
 
 def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
@@ -62,10 +105,12 @@ def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
         spawn_viewer(rrd)
 
 
-def default_run_path(config: Config, folder: Path = RUNS_FOLDER) -> Path:
+def default_run_path(config: "Config", folder: Path = RUNS_FOLDER) -> Path:
     """A new `runs/<UTC time>_<terrain>_<estimator>[-N].mcap`. The name is reserved by creating its
     `.partial` file exclusively: runs started in parallel in the same second (a sweep) would
     otherwise pick the same name and rename each other's files away."""
+    from datasets.recorder import PARTIAL_SUFFIX
+
     folder.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     stem = f"{stamp}_{file_stem(config.run.terrain)}_{file_stem(config.run.estimator)}"
@@ -88,6 +133,7 @@ def add_subcommands(subparsers) -> None:
     replay.add_argument("--estimator", required=True, help="ekf | ukf | complementary | madgwick | mahony | vqf")
     replay.add_argument("--out", type=Path, metavar="OUT.mcap", help="write the run with the replayed estimates")
     replay.add_argument("--metrics", type=Path, metavar="FILE.json", help="write the replay's metrics as JSON")
+    replay.add_argument("--quiet", action="store_true", help="no progress bar (there is none when stderr is not a terminal)")
     replay.set_defaults(handler=cmd_replay)
 
     info = subparsers.add_parser("info", help="duration, terrain, estimator, topics and metrics of a recorded run")
@@ -102,6 +148,7 @@ def add_subcommands(subparsers) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from datasets.progress import with_progress
     from datasets.replay import replay
     from testbed.runtime.metrics import write_metrics
 
@@ -111,7 +158,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         _check_output(args.out, "--out")
         if args.out.resolve() == args.file.resolve():
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
-    result = replay(args.file, args.estimator, args.out)
+    result = replay(args.file, args.estimator, args.out, with_progress if show_progress(args.quiet) else iter)
     if result.truncation_note:
         print(f"testbed: warning: {result.truncation_note}", file=sys.stderr)
     if args.metrics is not None:
@@ -155,9 +202,13 @@ def _export(mcap_path: str | Path, rrd: Path) -> None:
     print(f"wrote {rrd}")
 
 
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def spawn_viewer(rrd: Path) -> None:
     """Open the Rerun viewer on `rrd` in the background, when there is a display to open it on."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    if not _has_display():
         print(f"testbed: no display: not opening a viewer (run `rerun {rrd}` where there is one)", file=sys.stderr)
         return
     subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True,

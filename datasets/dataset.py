@@ -82,7 +82,8 @@ FOXGLOVE_FIELDS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "foxglove.FrameTransform": (("translation", ("translation",)), ("rotation", ("rotation",))),
 }
 NS_PER_S = 1_000_000_000
-_DTYPES = {"double": float, "bool": bool, "uint32": np.int64}
+TRANSFORMS = "foxglove.FrameTransforms"     # /tf: a table of every frame's transform
+_DTYPES = {"double": float, "bool": bool, "uint32": np.int64, "string": object}
 
 
 @dataclass(frozen=True)
@@ -185,6 +186,8 @@ class Dataset:
 
 def _columns(message_class: type, payloads: list[bytes]) -> dict[str, np.ndarray]:
     name = message_class.DESCRIPTOR.full_name
+    if name == TRANSFORMS:
+        return _transforms_columns(message_class, payloads)
     if name in FOXGLOVE_FIELDS:
         return _foxglove_columns(message_class, FOXGLOVE_FIELDS[name], payloads)
     return _hexapod_columns(message_class, payloads)
@@ -237,6 +240,25 @@ def _foxglove_columns(message_class: type, fields: tuple[tuple[str, tuple[str, .
             row += [getattr(nested, component.name) for component in nested.DESCRIPTOR.fields]
         rows.append(row)
     table = np.asarray(rows, dtype=float).reshape(len(rows), len(names))
+    return {name: table[:, i] for i, name in enumerate(names)}
+
+
+def _transforms_columns(message_class: type, payloads: list[bytes]) -> dict[str, np.ndarray]:
+    """`t`, then each transform's translation and rotation, prefixed by its child frame:
+    `body_translation_x`, `leg1_femur_rotation_w`, ... (the frames of the first message)."""
+    messages = list(map(message_class.FromString, payloads))
+    frames = [transform.child_frame_id for transform in messages[0].transforms] if messages else []
+    names = ["t"] + [f"{frame}_{part}_{axis}" for frame in frames for part, axes in (("translation", XYZ),
+                                                                                       ("rotation", XYZ + ("w",)))
+                     for axis in axes]
+    table = np.full((len(messages), len(names)), np.nan)
+    for row, message in enumerate(messages):
+        stamp = message.transforms[0].timestamp if message.transforms else None
+        table[row, 0] = np.nan if stamp is None else stamp.seconds + stamp.nanos / NS_PER_S
+        values = [value for transform in message.transforms[:len(frames)]
+                  for value in (transform.translation.x, transform.translation.y, transform.translation.z,
+                                transform.rotation.x, transform.rotation.y, transform.rotation.z, transform.rotation.w)]
+        table[row, 1:1 + len(values)] = values
     return {name: table[:, i] for i, name in enumerate(names)}
 
 

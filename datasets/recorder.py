@@ -85,7 +85,9 @@ class McapRecorder:
         self._dataset = WriterProcess(self.path, run_description(config, self._every, self.truth_rate), config, urdf)
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
-        self._dataset.write([(self._dataset.channels[schemas.TERRAIN.name], 0, terrain_data, 0)], flush=True)
+        description = codec.robot_description_message(urdf)
+        self._dataset.write([(self._dataset.channels[schemas.TERRAIN.name], 0, terrain_data, 0),
+                             (self._dataset.channels[schemas.ROBOT_DESCRIPTION.name], 0, description, 0)], flush=True)
         self._next_flush_ns = codec.to_ns(self.flush_period)
         self.busy_s += time.perf_counter() - started
 

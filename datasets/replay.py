@@ -11,7 +11,7 @@ from __future__ import annotations
 import multiprocessing
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -24,6 +24,7 @@ from datasets.recorder import DatasetWriter
 from datasets.scoring import ScoringTruth, score_run
 from estimators.base import Estimate, run_estimator
 from estimators.registry import make_estimator, resolve_estimator
+from sensors.samples import Sample
 from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
@@ -40,9 +41,11 @@ class ReplayResult:
     truncation_note: str | None      # set when the file was truncated and only its readable part replayed
 
 
-def replay(path: str | Path, estimator_name: str, out: str | Path | None = None) -> ReplayResult:
+def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
+           feed: Callable[[list[Sample]], Iterable[Sample]] = iter) -> ReplayResult:
     """Replay `path` through `estimator_name`; with `out`, also write the run with the new
-    estimates as a dataset of its own."""
+    estimates as a dataset of its own. `feed` gives the samples to the estimator in their order
+    (`datasets.progress.with_progress` shows a progress bar meanwhile)."""
     started = time.perf_counter()
     with in_background(read_scoring_truth, path) as scoring_truth:
         recording = read_recording(path, topics=None if out is not None else sample_topics(estimator_name))
@@ -50,7 +53,7 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None)
         recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
         estimator = make_estimator(estimator_name, config)
         samples = recording.samples()
-        estimates = run_estimator(estimator, samples)
+        estimates = run_estimator(estimator, feed(samples))
         truth = scoring_truth()
     metrics = score_run(config, truth, estimates)
     sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0

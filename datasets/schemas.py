@@ -1,6 +1,6 @@
 """Protobuf schemas of the dataset's own messages, and the topic table.
 
-Poses and transforms use Foxglove's schemas (foxglove.PoseInFrame, foxglove.FrameTransform,
+Poses and transforms use Foxglove's schemas (foxglove.PoseInFrame, foxglove.FrameTransforms,
 foxglove.SceneUpdate) so that Foxglove and Rerun draw them. Everything else is a message of the
 `hexapod` package below, built at import time from descriptors (no generated code to keep in
 sync); each MCAP file carries the full FileDescriptorSet of its schemas, so any protobuf reader
@@ -21,7 +21,7 @@ from functools import cache
 
 import numpy as np
 
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool
@@ -63,6 +63,8 @@ MESSAGES: dict[str, list[tuple[str, str, str]]] = {
     "Command": [("t", "double", "one"), ("phase", "double", "many"), ("swinging", "bool", "many"),
                 ("foot_targets", "double", "many"), ("joint_targets", "double", "many"),
                 ("body_twist", "double", "many")],
+    # `data`, the URDF text, as in ROS's std_msgs/String: what Foxglove's 3D panel reads from /robot_description.
+    "RobotDescription": [("t", "double", "one"), ("data", "string", "one")],
 }
 
 
@@ -103,6 +105,7 @@ TruthStateMsg = CLASSES["TruthState"]
 ContactsMsg = CLASSES["Contacts"]
 SupportMsg = CLASSES["Support"]
 CommandMsg = CLASSES["Command"]
+RobotDescriptionMsg = CLASSES["RobotDescription"]
 
 
 @dataclass(frozen=True)
@@ -114,7 +117,7 @@ class Topic:
 
 
 TRUTH_POSE = Topic("/truth/pose", PoseInFrame, "body pose in the world frame at every physics step")
-TF = Topic("/tf", FrameTransform, "world -> body transform at the truth rate")
+TF = Topic("/tf", FrameTransforms, "world -> body and every joint's parent -> child link transform, at the truth rate")
 TERRAIN = Topic("/terrain", SceneUpdate, "the terrain's boxes, once at t = 0")
 TRUTH_FEET = Topic("/truth/feet", FeetTruthMsg, "foot centres and contact flags at every physics step")
 TRUTH_STATE = Topic("/truth/state", TruthStateMsg, "body twist and accelerations, joints, feet, centre of mass")
@@ -126,9 +129,10 @@ ENCODERS = Topic("/sensors/encoders", EncoderSampleMsg, "joint-encoder samples")
 FEET = Topic("/sensors/feet", FootSampleMsg, "foot force-sensor samples")
 ESTIMATE = Topic("/estimate", EstimateMsg, "estimator output with covariances")
 COMMAND = Topic("/command", CommandMsg, "gait phase, foot targets, joint commands, commanded twist")
+ROBOT_DESCRIPTION = Topic("/robot_description", RobotDescriptionMsg, "the robot's URDF, once at t = 0")
 
 TOPICS = (TRUTH_POSE, TRUTH_FEET, TF, TERRAIN, TRUTH_STATE, TRUTH_CONTACTS, TRUTH_SUPPORT, IMU, ACCEL_ARRAY, ENCODERS, FEET,
-          ESTIMATE, COMMAND)
+          ESTIMATE, COMMAND, ROBOT_DESCRIPTION)
 SENSOR_TOPICS = (IMU.name, ACCEL_ARRAY.name, ENCODERS.name, FEET.name)
 SENSOR_PREFIX = "/sensors/"
 SAMPLES_PACKAGE = f"{PACKAGE}.samples"

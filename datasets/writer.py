@@ -157,6 +157,8 @@ class DatasetWriter:
         writer.add_attachment(created, 0, "robot.urdf", "application/xml", description.urdf.encode())
         for name, (media_type, data) in description.attachments.items():
             writer.add_attachment(created, 0, name, media_type, data)
+        if description.urdf:
+            self._encoder.describe_robot(description.urdf)
 
     def _write(self, messages: list[Message], flush: bool) -> None:
         add = self._writer.add_message

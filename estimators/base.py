@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -79,7 +79,7 @@ class Estimator(abc.ABC):
             self._update_feet(sample)
         return None
 
-    def update_batch(self, samples: Sequence[Sample]) -> list[Estimate]:
+    def update_batch(self, samples: Iterable[Sample]) -> list[Estimate]:
         """The estimates of time-ordered `samples`, exactly as `update` gives them one at a time.
         Offline replay calls this; an estimator whose library has a compiled batch loop overrides
         it with that loop."""
@@ -116,4 +116,4 @@ def imu_position(config) -> np.ndarray:
 
 def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
     """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
-    return estimator.update_batch(samples if isinstance(samples, Sequence) else list(samples))
+    return estimator.update_batch(samples)

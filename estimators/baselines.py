@@ -15,7 +15,7 @@ All three are fed body-frame samples (the IMU mounting rotation is applied by th
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from ahrs.filters import Madgwick, Mahony
@@ -142,9 +142,10 @@ class VqfEstimator(Estimator):
     def _estimate(t: float, q_wxyz: np.ndarray, bias: np.ndarray, bias_sigma: float) -> Estimate:
         return attitude_estimate(t, scalar_last(q_wxyz), bias, bias_sigma**2 * IDENTITY)
 
-    def update_batch(self, samples: Sequence[Sample]) -> list[Estimate]:
+    def update_batch(self, samples: Iterable[Sample]) -> list[Estimate]:
         """`update` sample by sample until the filter exists, then VQF's compiled `updateBatch`
         over the remaining IMU samples (the same per-sample update, looped in C++)."""
+        samples = samples if isinstance(samples, Sequence) else list(samples)
         estimates, start = [], 0
         while self.filter is None and start < len(samples):
             estimate = self.update(samples[start])

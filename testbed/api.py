@@ -8,25 +8,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm.auto import tqdm
-
 from datasets.dataset import Dataset, load
+from datasets.progress import ProgressRecorder
 from datasets.recorder import McapRecorder
 from datasets.replay import replay as replay_recording
 from estimators.base import Estimator
 from testbed.control.controller import Controller
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
-from testbed.runtime.recording import NullRecorder, Recorder, Tick
+from testbed.runtime.recording import NullRecorder, Recorder
 from testbed.runtime.runner import build_parts
 from testbed.runtime.runner import run as run_loop
 from testbed.world.terrain import Terrain
 
 __all__ = ["Result", "run", "load", "replay", "Dataset", "make_config"]
-
-PROGRESS_PERIOD = 0.1       # s of simulated time between two updates of the progress bar
-PROGRESS_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s simulated [{elapsed}<{remaining}]"
-
 
 @dataclass(frozen=True)
 class Result:
@@ -90,31 +85,3 @@ def _estimator_spec(estimator: str | type[Estimator]) -> str:
         return f"{estimator.__module__}:{estimator.__qualname__}"
     raise TypeError(f"replay takes an estimator name, a MODULE:CLASS spec or an Estimator subclass, "
                     f"not {estimator!r}: the recorded config builds it")
-
-
-class ProgressRecorder:
-    """A recorder that also shows the simulated time on a progress bar."""
-
-    def __init__(self, inner: Recorder):
-        self.inner = inner
-        self.bar = None
-        self.next_update = 0.0
-
-    def start(self, config: Config, urdf: str, terrain: Terrain) -> None:
-        self.bar = tqdm(total=config.run.duration, unit="sim s", desc="run", bar_format=PROGRESS_FORMAT)
-        self.inner.start(config, urdf, terrain)
-
-    def record(self, tick: Tick) -> None:
-        self.inner.record(tick)
-        t = tick.truth.t
-        if t >= self.next_update:
-            self.bar.n = min(t, self.bar.total)
-            self.bar.refresh()
-            self.next_update = t + PROGRESS_PERIOD
-
-    def finish(self, metrics: dict, error: str | None) -> None:
-        try:
-            self.inner.finish(metrics, error)
-        finally:
-            self.bar.n = min(metrics.get("sim_time_s", self.bar.n), self.bar.total)
-            self.bar.close()

@@ -12,9 +12,10 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ContextManager, NamedTuple
 
 import numpy as np
+from numba.core.event import TimingListener, install_listener
 
 from estimators.base import Estimate, Estimator
 from estimators.registry import NONE as NO_ESTIMATOR
@@ -143,6 +144,13 @@ def fewer_garbage_collections() -> Iterator[None]:
         gc.unfreeze()
 
 
+def compilation_timer() -> ContextManager[TimingListener]:
+    """Measures the time numba spends compiling kernels meanwhile (`.duration` once `.done`):
+    a run that compiles reports it as `compile_s` and leaves it out of `wall_s` and
+    `realtime_factor`. Kernels loaded from numba's cache do not count."""
+    return install_listener("numba:compile", TimingListener())
+
+
 class Parts(NamedTuple):
     """What one run is made of: the world, the robot's sensors and its onboard software."""
     sim: Simulation
@@ -268,7 +276,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         return command
 
     try:
-        with fewer_garbage_collections():
+        with fewer_garbage_collections(), compilation_timer() as compiling:
             command = tick_once()       # t = 0: the first samples
             for step in range(steps):
                 sim.step(command.joint_targets)
@@ -287,8 +295,10 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
             raise
         outcome.interrupted = True
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
-    wall = time.perf_counter() - start
+    compile_s = compiling.duration if compiling.done else 0.0
+    wall = time.perf_counter() - start - compile_s
     outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
+    outcome.metrics["compile_s"] = compile_s
     outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
     recorder.finish(outcome.metrics, outcome.error)
     return outcome

@@ -6,6 +6,7 @@ Bad input gives one line on stderr and exit code 2, with nothing written.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import signal
 import sys
@@ -14,17 +15,29 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from datasets import commands as dataset_commands
-from estimators.registry import ESTIMATORS
-from testbed.control.controller import CONTROLLERS
-from testbed.control.gait import GAITS
-from testbed.runtime import config as config_module
-from testbed.world.terrain import TERRAINS
-from testbed.tools import bench_cli
-from testbed.tools import sweep_cli
-from testbed.tools import profile as profile_cli
 from testbed.model.errors import ConfigError, PluginError, UserError
+from testbed.model.registry import Registry
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+# The subcommands defined in other modules, with their one-line help: a module is imported only
+# when its subcommand is used, so that `--help` and bad input answer without loading the simulation.
+SUBCOMMANDS = {
+    "replay": ("datasets.commands", "feed a recorded run's sensor streams to an estimator and score it"),
+    "info": ("datasets.commands", "duration, terrain, estimator, topics and metrics of a recorded run"),
+    "view": ("datasets.commands", "convert a recorded run into a Rerun recording"),
+    "export": ("datasets.export_commands", "convert a recorded run to ROS 2 MCAP, TUM trajectories or CSV tables"),
+    "sweep": ("testbed.tools.sweep_cli",
+              "a grid of runs (terrains x seeds x estimators x sensor presets): one MCAP per run and an index"),
+    "profile": ("testbed.tools.profile", "time per simulated step of each stage of the run loop"),
+    "bench": ("testbed.tools.bench_cli", "the estimator benchmarks: record walks, replay every estimator, report"),
+}
+# The named parts of a run, by option: (kind, entry point group). Names are listed and checked from
+# the entry points alone (`Registry.check_spec` imports nothing), before the config loads the parts.
+NAMED_PARTS = {"terrain": ("terrain", "terrains"), "contact": ("contact model", "contacts"),
+               "gait": ("gait", "gaits"), "estimator": ("estimator", "estimators"),
+               "controller": ("controller", "controllers")}
+NO_ESTIMATOR = "none"
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -93,17 +106,31 @@ def choices(registry) -> str:
     return " | ".join(registry.names()) + " | MODULE:CLASS"
 
 
+def named_parts(option: str) -> Registry:
+    """The registry of the part named by a run option, for its names only (nothing imported)."""
+    kind, group = NAMED_PARTS[option]
+    return Registry(kind, group, lambda obj: True, kind)
+
+
+def _check_named_parts(args: argparse.Namespace) -> None:
+    """Unknown part names given on the command line: PluginError before anything heavy loads."""
+    for option in NAMED_PARTS:
+        spec = getattr(args, option)
+        if spec is not None and not (option == "estimator" and spec == NO_ESTIMATOR):
+            named_parts(option).check_spec(spec)
+
+
 def _add_run_parser(subparsers) -> None:
     parser = subparsers.add_parser("run", help="simulate one scenario")
-    parser.add_argument("--terrain", help=f"{choices(TERRAINS)}")
+    parser.add_argument("--terrain", help=f"{choices(named_parts('terrain'))}")
     parser.add_argument("--contact", help="compliant (hard finger) | dart (DART rigid contact)")
-    parser.add_argument("--gait", help=f"{choices(GAITS)} (default stand; tripod with --target)")
+    parser.add_argument("--gait", help=f"{choices(named_parts('gait'))} (default stand; tripod with --target)")
     parser.add_argument("--speed", type=float, help="forward speed, m/s (cruise speed with --target)")
     parser.add_argument("--lateral-speed", type=float, help="speed to the left, m/s")
     parser.add_argument("--turn-rate", type=float, help="turning rate, rad/s counter-clockwise")
     parser.add_argument("--target", help="X,Y: walk to this point of the ground (m) and stop")
-    parser.add_argument("--estimator", help=f"none | {choices(ESTIMATORS)}")
-    parser.add_argument("--controller", help=f"{choices(CONTROLLERS)} (none: gait and IK; posture: also keeps the "
+    parser.add_argument("--estimator", help=f"none | {choices(named_parts('estimator'))}")
+    parser.add_argument("--controller", help=f"{choices(named_parts('controller'))} (none: gait and IK; posture: also keeps the "
                                               "body level and at height, needs an estimator)")
     parser.add_argument("--fault", action="append", metavar="SPEC",
                         help="inject a sensor fault, e.g. imu.accel.spike@5s (see docs/sensors.md; repeatable)")
@@ -118,7 +145,9 @@ def _add_run_parser(subparsers) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from testbed.runtime.metrics import write_metrics      # the simulation's imports, only for a run
+    _check_named_parts(args)
+    from testbed.runtime import config as config_module   # the simulation's imports, only for a run
+    from testbed.runtime.metrics import write_metrics
     from testbed.runtime.runner import build_parts, run
 
     base = None if args.from_mcap is None else dataset_commands.config_from_mcap(args.from_mcap)
@@ -130,13 +159,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     outcome = run(cfg, recorder, parts=parts)
     if args.metrics is not None:
         write_metrics(args.metrics, outcome.metrics)
-    print(f"recorded {recorder.path}")
-    if not outcome.interrupted:
-        dataset_commands.after_run(args, recorder.path)
-    m = outcome.metrics
-    print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
-          f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
-          f"weight support {m['weight_support_ratio'] if m['weight_support_ratio'] is None else round(m['weight_support_ratio'], 4)}")
+    path = getattr(recorder, "path", None)
+    if not outcome.interrupted and path is not None:
+        dataset_commands.after_run(args, path)
+    print(_result_line(cfg, outcome.metrics, path))
     if outcome.note:
         print(f"testbed: note: {outcome.note}", file=sys.stderr)
     if outcome.interrupted:
@@ -148,6 +174,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _result_line(cfg, m: dict, path: Path | None) -> str:
+    """The one line a run prints: what ran, its speed, whether it fell, where it was recorded."""
+    support = m["weight_support_ratio"]
+    compiled = f", plus {m['compile_s']:.1f} s compiling kernels" if m.get("compile_s") else ""
+    return (f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
+            f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time{compiled}), fell={m['fell']}, "
+            f"weight support {support if support is None else round(support, 4)}"
+            + (f"; recorded {path}" if path is not None else "; not recorded"))
+
+
 def _add_export_parser(subparsers) -> None:
     parser = subparsers.add_parser("export-urdf", help="write the robot's URDF")
     parser.add_argument("out", type=Path, help="output .urdf file")
@@ -157,6 +193,7 @@ def _add_export_parser(subparsers) -> None:
 
 def _cmd_export_urdf(args: argparse.Namespace) -> int:
     from testbed.model.robot import build_urdf
+    from testbed.runtime import config as config_module
 
     cfg = config_module.load(args.config)
     if args.out.is_dir():
@@ -168,16 +205,27 @@ def _cmd_export_urdf(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand; only the module of the subcommand named in `argv` (all of
+    them when `argv` is None) is imported, the others get their one-line help."""
     parser = OneLineParser(prog="testbed", description="Hexapod control and sensor-fusion testbed")
     subparsers = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     _add_run_parser(subparsers)
     _add_export_parser(subparsers)
-    dataset_commands.add_subcommands(subparsers)
-    sweep_cli.add_subcommands(subparsers)
-    profile_cli.add_subcommands(subparsers)
-    bench_cli.add_subcommands(subparsers)
+    chosen = _subcommand(argv)
+    modules = dict.fromkeys(module for module, _ in SUBCOMMANDS.values())
+    for module in modules:
+        if argv is None or chosen in (name for name, (owner, _) in SUBCOMMANDS.items() if owner == module):
+            importlib.import_module(module).add_subcommands(subparsers)
+    for name, (_, help_text) in SUBCOMMANDS.items():
+        if name not in subparsers.choices:
+            subparsers.add_parser(name, help=help_text, add_help=False)
     return parser
+
+
+def _subcommand(argv: Sequence[str] | None) -> str | None:
+    """The subcommand `argv` names: its first word that is not an option."""
+    return next((word for word in argv or () if not word.startswith("-")), None)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -185,7 +233,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # and `kill -INT` must still stop it cleanly (the recorder closes its file on the way out).
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else argv
+        args = build_parser(argv).parse_args(argv)
         return args.handler(args)
     except PluginError as error:
         print(f"testbed: {error}", file=sys.stderr)

@@ -25,6 +25,7 @@ from testbed.runtime.presets import DEFAULT_PRESET, preset_names
 
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 SCHEMES = ("tcp", "tls")
+DEFAULT_GAIT = "tripod"
 
 
 def add_subcommands(subparsers) -> None:
@@ -38,7 +39,7 @@ def add_subcommands(subparsers) -> None:
     parser.add_argument("--sensors", default=DEFAULT_PRESET, metavar="P1,P2",
                         help=f"sensor presets: {', '.join(preset_names())} (default {DEFAULT_PRESET})")
     parser.add_argument("--duration", type=float, help="simulated seconds per run (default: the config's)")
-    parser.add_argument("--gait", help=f"{' | '.join(GAITS.names())} | MODULE:NAME (default: the config's)")
+    parser.add_argument("--gait", help=f"{' | '.join(GAITS.names())} | MODULE:NAME (default: the --config file's, else tripod)")
     parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml for every run")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR",
                         help="folder of the runs and the index; run the same command again to resume")
@@ -117,7 +118,11 @@ def _base(path: Path | None) -> dict[str, Any] | None:
 
 
 def _run_keys(args: argparse.Namespace) -> dict[str, Any]:
-    return {key: value for key, value in (("duration", args.duration), ("gait", args.gait)) if value is not None}
+    """--duration and the gait: --gait, else the --config file's, else the tripod as `testbed bench`
+    walks it (at the config's speed)."""
+    configured = (_base(args.config) or {}).get("run", {}).get("gait")
+    gait = args.gait if args.gait is not None else None if configured is not None else DEFAULT_GAIT
+    return {key: value for key, value in (("duration", args.duration), ("gait", gait)) if value is not None}
 
 
 def _grid(args: argparse.Namespace) -> list[sweep.GridPoint]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from google.protobuf import descriptor_pb2, descriptor_pool
 from google.protobuf.message_factory import GetMessageClass
 
@@ -112,7 +112,7 @@ def test_poses_and_transforms_come_back_bit_for_bit(t_ns):
         decoded_position, decoded_quaternion = codec.decode_pose(encoder.pose(t_ns, position, quaternion))
         same(decoded_position, position)
         same(decoded_quaternion, quaternion)
-        transform = FrameTransform.FromString(encoder.transform(t_ns, position, quaternion))
+        (transform,) = FrameTransforms.FromString(encoder.transforms(t_ns, position, quaternion)).transforms
         assert (transform.timestamp.seconds * codec.NS_PER_S + transform.timestamp.nanos) == t_ns
         assert (transform.parent_frame_id, transform.child_frame_id) == (codec.WORLD_FRAME, codec.BODY_FRAME)
         same([transform.translation.x, transform.translation.y, transform.translation.z], position)

@@ -19,11 +19,12 @@ from tests.datasets.ticks import generate_ticks, synthetic_config, terrain_and_u
 from testbed.runtime.recording import Tick
 
 
-def expected_messages(ticks: list[Tick], every: int) -> list[tuple[str, int, int, bytes]]:
+def expected_messages(ticks: list[Tick], every: int, urdf: str) -> list[tuple[str, int, int, bytes]]:
     """(topic, log time, sequence, data) of every tick's messages, one message at a time: its
-    samples, estimates, pose and feet, then every `every` ticks its transform, state, contacts,
+    samples, estimates, pose and feet, then every `every` ticks its transforms, state, contacts,
     support and command."""
     encoder, to_ns = codec.Encoder(), codec.to_ns
+    encoder.describe_robot(urdf)
     messages, sequence = [], 0
     for index, tick in enumerate(ticks):
         truth = tick.truth
@@ -38,7 +39,8 @@ def expected_messages(ticks: list[Tick], every: int) -> list[tuple[str, int, int
         if index % every == 0:
             support = encoder.support(truth.t, tick.support_polygon, truth.com_position[:2], tick.stability_margin)
             messages += [
-                (schemas.TF.name, t_ns, 0, encoder.transform(t_ns, truth.body_position, tick.truth_quaternion)),
+                (schemas.TF.name, t_ns, 0, encoder.transforms(t_ns, truth.body_position, tick.truth_quaternion,
+                                                                  truth.joint_positions)),
                 (schemas.TRUTH_STATE.name, t_ns, 0, encoder.truth_state(truth)),
                 (schemas.TRUTH_CONTACTS.name, t_ns, 0, encoder.contacts(truth.t, tick.contacts)),
                 (schemas.TRUTH_SUPPORT.name, t_ns, 0, support),
@@ -50,14 +52,14 @@ def recorded_messages(path) -> list[tuple[str, int, int, bytes]]:
     with open(path, "rb") as stream:
         return [(channel.topic, message.log_time, message.sequence, message.data)
                 for _, channel, message in make_reader(stream).iter_messages(log_time_order=False)
-                if channel.topic != schemas.TERRAIN.name]
+                if channel.topic not in (schemas.TERRAIN.name, schemas.ROBOT_DESCRIPTION.name)]
 
 
 def test_the_file_holds_every_tick_s_messages_in_order_as_the_encoder_serialises_them(ekf_run):
     config, ticks, path = ekf_run
     every = int(read_recording(path).run_info()["truth_every"])
     assert every > 1
-    recorded, expected = recorded_messages(path), expected_messages(ticks, every)
+    recorded, expected = recorded_messages(path), expected_messages(ticks, every, read_recording(path).urdf())
     assert len(recorded) == len(expected)
     for index, (a, b) in enumerate(zip(recorded, expected)):
         assert a == b, (index, a[:3], b[:3])
@@ -116,7 +118,8 @@ def test_a_plugin_sample_type_is_recorded_on_its_own_topic(tmp_path):
     thermo = [(s.t, s.celsius, s.board.tolist()) for s in read if isinstance(s, ThermoSample)]
     assert thermo == [(s.t, s.celsius, s.board.tolist()) for s in written if isinstance(s, ThermoSample)]
     assert len(thermo) == (len(ticks) + 9) // 10
-    assert recorded_messages(path) == expected_messages(ticks, int(recording.run_info()["truth_every"]))
+    assert recorded_messages(path) == expected_messages(ticks, int(recording.run_info()["truth_every"]),
+                                                        recording.urdf())
 
 
 class NotADataclass:
@@ -139,4 +142,4 @@ def test_a_tick_with_a_sample_that_cannot_be_recorded_is_refused_in_the_run_loop
             recorder.record(tick)
     recorder.finish({}, None)
     kept = ticks[:refused] + ticks[refused + 1:]
-    assert recorded_messages(recorder.path) == expected_messages(kept, recorder._every)
+    assert recorded_messages(recorder.path) == expected_messages(kept, recorder._every, urdf)

@@ -140,7 +140,8 @@ def test_poses_use_foxglove_schemas_and_the_rest_protobuf(ekf_run):
     _, _, path = ekf_run
     topics = read_recording(path, topics=()).topics
     assert topics["/truth/pose"].schema == "foxglove.PoseInFrame"
-    assert topics["/tf"].schema == "foxglove.FrameTransform"
+    assert topics["/tf"].schema == "foxglove.FrameTransforms"
+    assert topics["/robot_description"].schema == "hexapod.RobotDescription"
     assert topics["/terrain"].schema == "foxglove.SceneUpdate"
     assert topics["/estimate"].schema == "hexapod.Estimate"
 
