@@ -21,6 +21,7 @@ from datasets.reader import read_description
 from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
 from testbed.runtime.config import Config
 from testbed.model.errors import UserError
+from testbed.runtime.outputs import prepare_output
 from testbed.model.registry import file_stem
 
 EXIT_OK = 0
@@ -36,6 +37,11 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spawn", action="store_true", help="open the Rerun viewer on the run when it ends")
     parser.add_argument("--from", dest="from_mcap", type=Path, metavar="RUN.mcap",
                         help="start from the config recorded in RUN.mcap (other options override it)")
+    add_force_argument(parser)
+
+
+def add_force_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true", help="replace output files that exist already")
 
 
 def config_from_mcap(path: str | Path) -> dict[str, Any]:
@@ -45,11 +51,12 @@ def config_from_mcap(path: str | Path) -> dict[str, Any]:
 
 def recorder_for(args: argparse.Namespace, config: Config) -> McapRecorder:
     """The recorder of a `testbed run`: to --out, or to the default path under runs/."""
-    out = args.out if args.out is not None else default_run_path(config)
-    _check_output(out, "--out")
+    force = getattr(args, "force", False)
     if args.rerun is not None:
-        _check_output(args.rerun, "--rerun")
-    return McapRecorder(out)
+        prepare_output(args.rerun, "--rerun", force)
+    if args.out is None:
+        return McapRecorder(default_run_path(config))
+    return McapRecorder(prepare_output(args.out, "--out", force), replace=force)
 
 
 def after_run(args: argparse.Namespace, mcap_path: str | Path) -> None:
@@ -88,6 +95,7 @@ def add_subcommands(subparsers) -> None:
     replay.add_argument("--estimator", required=True, help="ekf | ukf | complementary | madgwick | mahony | vqf")
     replay.add_argument("--out", type=Path, metavar="OUT.mcap", help="write the run with the replayed estimates")
     replay.add_argument("--metrics", type=Path, metavar="FILE.json", help="write the replay's metrics as JSON")
+    add_force_argument(replay)
     replay.set_defaults(handler=cmd_replay)
 
     info = subparsers.add_parser("info", help="duration, terrain, estimator, topics and metrics of a recorded run")
@@ -98,6 +106,7 @@ def add_subcommands(subparsers) -> None:
     view.add_argument("file", type=Path, metavar="RUN.mcap")
     view.add_argument("--rrd", type=Path, metavar="RUN.rrd", help="output file (default: RUN.rrd beside RUN.mcap)")
     view.add_argument("--spawn", action="store_true", help="open the Rerun viewer on it")
+    add_force_argument(view)
     view.set_defaults(handler=cmd_view)
 
 
@@ -105,10 +114,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from datasets.replay import replay
     from testbed.runtime.metrics import write_metrics
 
+    if args.estimator == "none":
+        raise UserError("replay needs an estimator to feed: --estimator none has nothing to replay")
     if args.metrics is not None:
-        _check_output(args.metrics, "--metrics")
+        prepare_output(args.metrics, "--metrics", args.force)
     if args.out is not None:
-        _check_output(args.out, "--out")
+        prepare_output(args.out, "--out", args.force)
         if args.out.resolve() == args.file.resolve():
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
     result = replay(args.file, args.estimator, args.out)
@@ -133,7 +144,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def cmd_view(args: argparse.Namespace) -> int:
     rrd = args.rrd if args.rrd is not None else args.file.with_suffix(".rrd")
-    _check_output(rrd, "--rrd")
+    prepare_output(rrd, "--rrd", args.force)
     _export(args.file, rrd)
     if args.spawn:
         spawn_viewer(rrd)
@@ -162,16 +173,6 @@ def spawn_viewer(rrd: Path) -> None:
         return
     subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def _check_output(path: Path, option: str) -> None:
-    if path.is_dir():
-        raise UserError(f"{option} {path} is a directory")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"{option} {path}: folder {parent} is not writable")
 
 
 def _deg(value: float | None) -> str:

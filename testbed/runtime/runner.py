@@ -24,6 +24,7 @@ from testbed.control.command import Command
 from testbed.control.controller import CONTROLLERS, Controller, checked_targets
 from testbed.control.pilot import Pilot
 from testbed.model.errors import PluginError, PluginFailure, SimulationDiverged
+from testbed.runtime.interrupts import held_interrupts
 from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
@@ -234,7 +235,6 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
     outcome = RunOutcome(metrics={})
-    recorder.start(config, sim.urdf, sim.terrain)
     start = time.perf_counter()
     def tick_once():
         """Sensors, estimator, controller and recorder after the simulation reached its current state."""
@@ -249,6 +249,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         return command
 
     try:
+        recorder.start(config, sim.urdf, sim.terrain)
         with fewer_garbage_collections():
             command = tick_once()       # t = 0: the first samples
             for step in range(steps):
@@ -265,7 +266,8 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         outcome.interrupted = True
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
     wall = time.perf_counter() - start
-    outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
-    outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
-    recorder.finish(outcome.metrics, outcome.error)
+    with held_interrupts():     # the run has stopped: a further Ctrl-C must not cut the closing of its file
+        outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
+        outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
+        recorder.finish(outcome.metrics, outcome.error)
     return outcome
