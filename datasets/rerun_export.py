@@ -21,7 +21,7 @@ import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
 from datasets import codec, schemas
-from datasets.reader import Recording
+from datasets.reader import Recording, primitive_urdf
 from estimators.scoring import roll_pitch_yaw
 from sensors.samples import ImuSample
 
@@ -143,6 +143,7 @@ def _log_robot(rec: rr.RecordingStream, recording: Recording, states: list) -> N
     urdf = recording.urdf()
     if not urdf:
         return
+    primitive_urdf(urdf, recording.path)
     with tempfile.TemporaryDirectory() as folder:
         urdf_path = Path(folder) / "robot.urdf"
         urdf_path.write_text(urdf)
