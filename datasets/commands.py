@@ -11,11 +11,16 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
+import struct
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
+
+from google.protobuf.message import DecodeError
 
 from datasets.reader import read_description
 from datasets.recorder import PARTIAL_SUFFIX, McapRecorder
@@ -46,7 +51,8 @@ def add_force_argument(parser: argparse.ArgumentParser) -> None:
 
 def config_from_mcap(path: str | Path) -> dict[str, Any]:
     """The resolved config recorded in a run's file, as a plain dict (`testbed.runtime.config.from_dict`)."""
-    return read_description(path).config_dict()
+    with damaged_file_errors(Path(path)):
+        return read_description(path).config_dict()
 
 
 def recorder_for(args: argparse.Namespace, config: Config) -> McapRecorder:
@@ -110,6 +116,17 @@ def add_subcommands(subparsers) -> None:
     view.set_defaults(handler=cmd_view)
 
 
+@contextmanager
+def damaged_file_errors(path: Path) -> Iterator[None]:
+    """A recorded message or array that does not decode, or does not fit what the testbed records,
+    as a one-line UserError (exit 2): the file is damaged or foreign."""
+    try:
+        yield
+    except (DecodeError, ValueError, IndexError, KeyError, TypeError, OverflowError, struct.error) as error:
+        text = " ".join(str(error).split())[:200]
+        raise UserError(f"{path}: damaged or foreign data ({type(error).__name__}: {text})") from None
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from datasets.replay import replay
     from testbed.runtime.metrics import write_metrics
@@ -122,7 +139,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         prepare_output(args.out, "--out", args.force)
         if args.out.resolve() == args.file.resolve():
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
-    result = replay(args.file, args.estimator, args.out)
+    with damaged_file_errors(args.file):
+        result = replay(args.file, args.estimator, args.out)
     if result.truncation_note:
         print(f"testbed: warning: {result.truncation_note}", file=sys.stderr)
     if args.metrics is not None:
@@ -138,14 +156,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     from datasets.info import describe
 
-    print(describe(args.file))
+    with damaged_file_errors(args.file):
+        text = describe(args.file)
+    print(text)
     return EXIT_OK
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     rrd = args.rrd if args.rrd is not None else args.file.with_suffix(".rrd")
     prepare_output(rrd, "--rrd", args.force)
-    _export(args.file, rrd)
+    with damaged_file_errors(args.file):
+        _export(args.file, rrd)
     if args.spawn:
         spawn_viewer(rrd)
     return EXIT_OK

@@ -29,6 +29,20 @@ def prepare_output(path: Path, option: str, force: bool) -> Path:
     return path
 
 
+def prepare_folder(path: Path, option: str) -> Path:
+    """An output folder: created with its parents if missing; UserError if it is a file or not writable."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise UserError(f"{option} {_shown(path)} is a file, not a folder") from None
+    except OSError as error:
+        raise UserError(f"{option} {_shown(path)}: cannot create it ({error.strerror})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UserError(f"{option} {_shown(path)} is not writable")
+    return path
+
+
 def _shown(path: Path) -> str:
     """A path on one line: control characters (a newline in a name) escaped."""
     return str(path).encode("unicode_escape").decode("ascii") if not str(path).isprintable() else str(path)

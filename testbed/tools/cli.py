@@ -27,8 +27,9 @@ from testbed.tools import bench_cli
 from testbed.tools import sweep_cli
 from testbed.tools import profile as profile_cli
 from testbed.model.errors import ConfigError, PluginError, UserError
+from testbed.model.kinematics import UnreachableTarget
 from datasets.writer import WriterFailed
-from testbed.runtime.interrupts import treat_stop_signals_as_interrupt
+from testbed.runtime.interrupts import STOP_SIGNALS, treat_stop_signals_as_interrupt
 from testbed.runtime.outputs import prepare_output, write_atomically
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -134,7 +135,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     cfg = config_module.load(args.config, _run_overrides(args), base=base)
     if args.metrics is not None:
         prepare_output(args.metrics, "--metrics", args.force)
-    parts = build_parts(cfg)        # a plugin that cannot be found or built stops here, before any file
+    try:
+        parts = build_parts(cfg)    # a plugin that cannot be found or built stops here, before any file
+    except UnreachableTarget as error:
+        raise ConfigError(f"the robot cannot take its start pose with this config ({error})") from None
     recorder = dataset_commands.recorder_for(args, cfg)
     outcome = run(cfg, recorder, parts=parts)
     if args.metrics is not None:
@@ -188,11 +192,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     # A run started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C,
     # `kill -INT`, SIGTERM and SIGHUP must still stop it cleanly (the recorder closes its file on the way out).
+    previous = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
     treat_stop_signals_as_interrupt()
     try:
         return _main(argv)
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)      # the work is done: a late Ctrl-C changes nothing
+        for signum, handler in previous.items():
+            # The command's work is done: a late Ctrl-C changes nothing. Called by a program: as it was.
+            signal.signal(signum, signal.SIG_IGN if interrupted_quietly.is_command(__name__ == "__main__")
+                          else handler if handler is not None else signal.SIG_DFL)
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -12,11 +12,16 @@ import threading
 
 def during_imports(as_main: bool) -> None:
     """Only for the `testbed` command (`as_main` under `python -m`), never when imported by a program."""
-    if not (as_main or os.path.basename(sys.argv[0]) == "testbed"):
+    if not is_command(as_main):
         return
     if threading.current_thread() is threading.main_thread():
         for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(signum, _exit_interrupted)
+
+
+def is_command(as_main: bool) -> bool:
+    """Whether this process is the `testbed` command (or `python -m testbed.tools.cli`)."""
+    return as_main or os.path.basename(sys.argv[0]) == "testbed"
 
 
 def _exit_interrupted(signum, frame) -> None:
