@@ -70,7 +70,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         if not locked:
             stack.enter_context(_locked(folder))
-        summary = _run(todo, index, backend, len(specs), args.max_attempts)
+        try:
+            summary = _run(todo, index, backend, len(specs), args.max_attempts)
+        except sweep.SweepStopped as error:
+            done = len([spec for spec in specs if spec.name in index.rows])
+            print(f"testbed: sweep stopped: {error}; {done} of {_runs(len(specs))} done, index "
+                  f"{folder / sweep.INDEX_FILE} saved; run the same command again to resume", file=sys.stderr)
+            return EXIT_FAILED
     _warn_unseen(folder, index, todo)
     return _report(summary, folder, time.perf_counter() - started)
 
@@ -161,9 +167,9 @@ def _backend(args: argparse.Namespace, pending: int):
         return sweep.LocalPool(min(args.workers or os.cpu_count() or 1, pending))
     client = sweep.connect(args.scheduler, args.connect_timeout)
     if not client.scheduler_info().get("workers"):
-        print(f"testbed: warning: the scheduler at {args.scheduler} has no workers yet; the runs wait for them",
-              file=sys.stderr)
-    return sweep.DaskPool(client, args.max_attempts)
+        print(f"testbed: warning: the scheduler at {args.scheduler} has no workers yet; the runs wait "
+              f"{args.connect_timeout:g} s (--connect-timeout) for one", file=sys.stderr)
+    return sweep.DaskPool(client, args.max_attempts, patience=args.connect_timeout)
 
 
 @contextmanager
