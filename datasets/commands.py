@@ -136,9 +136,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.metrics is not None:
         prepare_output(args.metrics, "--metrics", args.force)
     if args.out is not None:
-        prepare_output(args.out, "--out", args.force)
         if args.out.resolve() == args.file.resolve():
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
+        prepare_output(args.out, "--out", args.force)
     with damaged_file_errors(args.file):
         result = replay(args.file, args.estimator, args.out)
     if result.truncation_note:

@@ -96,7 +96,7 @@ class Recording:
         if "config" not in self.metadata:
             raise UserError(f"{self.path} holds no testbed run config: not a testbed dataset"
                             + (f" (it is truncated: {self.truncated})" if self.truncated else ""))
-        config = _recorded_json(self.metadata["config"].get("json"))
+        config = _recorded_json(self.metadata["config"].get("json"), f"{self.path}: its recorded config")
         if not isinstance(config, dict):
             raise UserError(f"{self.path}: its recorded config is damaged (not a JSON table)")
         return config
@@ -115,7 +115,7 @@ class Recording:
         text = self.metadata.get("metrics", {}).get("json")
         if text is None:
             return None
-        metrics = _recorded_json(text)
+        metrics = _recorded_json(text, f"{self.path}: its recorded metrics")
         if not isinstance(metrics, dict):
             raise UserError(f"{self.path}: its recorded metrics are damaged (not a JSON table)")
         return metrics
@@ -417,17 +417,17 @@ def chunk_data(chunk: Chunk) -> bytes:
     return data
 
 
-def _recorded_json(text: Any) -> Any:
+def _recorded_json(text: Any, what: str) -> Any:
     """Recorded JSON (config, metrics), nested at most MAX_JSON_DEPTH deep; UserError if it is not."""
     if not isinstance(text, str):
-        raise UserError("a recorded JSON entry is missing")
+        raise UserError(f"{what} is missing")
     depth = max(_running_depth(text), default=0)
     if depth > MAX_JSON_DEPTH:
-        raise UserError(f"recorded JSON nested {depth} deep (at most {MAX_JSON_DEPTH}): a damaged file")
+        raise UserError(f"{what} is damaged (JSON nested {depth} deep, at most {MAX_JSON_DEPTH})")
     try:
         return json.loads(text)
     except (json.JSONDecodeError, RecursionError) as error:
-        raise UserError(f"recorded JSON does not read ({type(error).__name__})") from None
+        raise UserError(f"{what} is damaged (not JSON: {type(error).__name__})") from None
 
 
 def _running_depth(text: str) -> Iterator[int]:

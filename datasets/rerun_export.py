@@ -46,8 +46,11 @@ def export_rrd(recording: Recording, rrd_path: str | Path) -> Path:
     rec.save(partial, default_blueprint=blueprint(positions[0] if len(positions) else np.zeros(3)))
     try:
         _log_run(rec, recording)
-    finally:
+    except BaseException:
         rec.disconnect()
+        partial.unlink(missing_ok=True)     # nothing half-written is left behind
+        raise
+    rec.disconnect()
     partial.replace(rrd_path)
     return rrd_path
 

@@ -75,6 +75,9 @@ def bench_set_from_args(args: argparse.Namespace) -> BenchSet:
 def cmd_bench(args: argparse.Namespace) -> int:
     bench_set = bench_set_from_args(args)
     base = Base(config_module.read_toml(args.config) if args.config is not None else None, args.sensors)
+    for folder, option in ((args.out, "--out"), (args.cache, "--cache")):
+        if folder.exists() and not folder.is_dir() or any(parent.is_file() for parent in folder.parents):
+            raise UserError(f"{option} {folder} is under a file, or a file: not a folder")
     prepare_folder(args.out, "--out")
     prepare_folder(args.cache, "--cache")
     jobs = len(bench_set.jobs(base, args.cache))    # builds (validates) every config before any run

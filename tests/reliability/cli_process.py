@@ -35,3 +35,19 @@ def wait_for(condition, timeout: float, interval: float = 0.001):
 def assert_one_line(err: str) -> None:
     assert "Traceback" not in err, err
     assert len(err.strip().splitlines()) <= 1, err
+
+
+def run_main(argv: list[str]) -> tuple[int, str, str]:
+    """`testbed ARGV` in this process: exit code, stdout, stderr (one line at most, no traceback)."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from testbed.tools import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stderr(err), redirect_stdout(out):
+        status = cli.main([str(arg) for arg in argv])
+    lines = [line for line in err.getvalue().splitlines() if not line.startswith("testbed: warning:")]
+    assert "Traceback" not in err.getvalue() and len(lines) <= 1, err.getvalue()
+    assert "testbed: failed:" not in err.getvalue(), err.getvalue()
+    return status, out.getvalue(), err.getvalue()
