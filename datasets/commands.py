@@ -183,7 +183,10 @@ def _export(mcap_path: str | Path, rrd: Path) -> None:
         raise UserError(f"{mcap_path} holds no messages to view" + (f" ({recording.truncated})" if recording.truncated else ""))
     if recording.truncation_note():
         print(f"testbed: warning: {recording.truncation_note()}", file=sys.stderr)
-    export_rrd(recording, rrd)
+    try:
+        export_rrd(recording, rrd)
+    except RuntimeError as error:       # the Rerun SDK's failures to write (a full disk)
+        raise OSError(f"writing {rrd} failed: {' '.join(str(error).split())}") from None
     print(f"wrote {rrd}")
 
 

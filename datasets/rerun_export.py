@@ -43,15 +43,16 @@ def export_rrd(recording: Recording, rrd_path: str | Path) -> Path:
     partial = rrd_path.with_name(rrd_path.name + ".partial")
     _, positions, _ = recording.poses()
     rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(recording))
-    rec.save(partial, default_blueprint=blueprint(positions[0] if len(positions) else np.zeros(3)))
     try:
-        _log_run(rec, recording)
+        rec.save(partial, default_blueprint=blueprint(positions[0] if len(positions) else np.zeros(3)))
+        try:
+            _log_run(rec, recording)
+        finally:
+            rec.disconnect()
+        partial.replace(rrd_path)
     except BaseException:
-        rec.disconnect()
         partial.unlink(missing_ok=True)     # nothing half-written is left behind
         raise
-    rec.disconnect()
-    partial.replace(rrd_path)
     return rrd_path
 
 

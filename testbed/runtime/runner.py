@@ -173,6 +173,8 @@ def _guarded(method, spec: str, what: str):
         except (KeyboardInterrupt, SimulationDiverged, PluginFailure):
             raise
         except Exception as error:
+            if is_interrupt(error):     # a Ctrl-C inside a compiled kernel's callback
+                raise KeyboardInterrupt from None
             raise PluginFailure(f"'{spec}' failed in {what} at run time: {type(error).__name__}: {error}") from None
     return call
 
