@@ -101,3 +101,22 @@ def test_a_ctrl_c_during_the_imports_exits_130_without_a_traceback(tmp_path):
     process.send_signal(signal.SIGINT)
     status, _, err = finish(process)
     assert status == 130 and err.strip() == "testbed: interrupted"
+
+
+def test_a_ctrl_c_after_the_run_has_stopped_changes_nothing(tmp_path, monkeypatch):
+    """A real SIGINT while the finished run closes its file (in this process): held, then dropped."""
+    from datasets.recorder import McapRecorder
+    from tests.reliability.cli_process import run_main
+
+    finish = McapRecorder.finish
+
+    def interrupted_finish(self, metrics, error):
+        signal.raise_signal(signal.SIGINT)
+        finish(self, metrics, error)
+
+    monkeypatch.setattr(McapRecorder, "finish", interrupted_finish)
+    out = tmp_path / "done.mcap"
+    status, stdout, err = run_main(["run", "--terrain", "flat", "--duration", "1.2", "--out", out])
+    assert status == 0 and err == "" and f"recorded {out}" in stdout
+    assert_valid(out)
+    assert read_recording(out).outcome()["error"] == ""
