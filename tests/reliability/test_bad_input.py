@@ -198,3 +198,21 @@ def test_a_log_time_at_the_end_of_time(tmp_path, recorded):
     path = damaged.written(tmp_path / "late.mcap", messages=messages + [(topic, 2**63 - 1, data)])
     code, out, _ = run_main(["info", path])
     assert code == 0 and "DAMAGED" in out and "9.2e+09" not in out.split("\n", 3)[2]
+
+
+@pytest.mark.parametrize("argv", [
+    ["export-urdf", "{folder}/robot.urdf"],
+    ["run", "--duration", "0.1", "--metrics", "{folder}/m.json", "--out", "{tmp}/r.mcap"],
+    ["run", "--duration", "0.1", "--out", "{folder}/r.mcap"],
+    ["view", "{recorded}", "--rrd", "{folder}/v.rrd"],
+    ["profile", "--duration", "0.1", "--json", "{folder}/p.json"],
+])
+def test_an_output_in_a_read_only_folder_is_refused(tmp_path, recorded, argv):
+    from tests.reliability.test_environments import read_only_copy
+
+    folder = read_only_copy(tmp_path, "read-only")
+    try:
+        refused([arg.format(folder=folder, tmp=tmp_path, recorded=recorded) for arg in argv], says="not writable")
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
+    assert not list(tmp_path.glob("r.mcap*"))

@@ -1,5 +1,6 @@
 """Fuzzing the command line in process (`testbed.tools.cli.main`, stderr captured): random
 arguments, TOML files and corrupted MCAP files never give a traceback, a hang or a wrong exit code.
+The count of cases tried is printed at the end of the session (conftest.py).
 A simulation that the arguments would start is replaced by a stand-in that stops at once (the
 arguments were accepted), so that thousands of cases run in seconds. Each test prints its count."""
 
@@ -68,13 +69,6 @@ def no_simulation(monkeypatch):
         raise Accepted
     monkeypatch.setattr(runner, "build_parts", accepted)
     monkeypatch.setattr(runner, "run", accepted)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def report():
-    yield
-    print("\nfuzz cases tried: " + ", ".join(f"{kind} {n}" for kind, n in sorted(counts.items()))
-          + f"; {sum(counts.values())} in all")
 
 
 @pytest.fixture(scope="module")
@@ -177,3 +171,19 @@ def test_corrupted_files_through_replay_and_view(recorded, tmp_path_factory, fli
     path.write_bytes(mutated(recorded.read_bytes(), flips, cut))
     call("mcap replay", ["replay", str(path), "--estimator", "complementary"])
     call("mcap view", ["view", str(path), "--rrd", str(folder / "bad.rrd")])
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--set", "run.duration=" + "[" * 5000 + "]" * 5000],
+    ["run", "--fault", "encoder.leg².dropout@1s"],
+    ["info", "{garbage}"],
+    ["replay", "{garbage}", "--estimator", "ekf"],
+])
+def test_a_few_cases_in_a_process_of_their_own(tmp_path, argv):
+    from tests.reliability.cli_process import finish, start
+
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 40)
+    counts["subprocess"] = counts.get("subprocess", 0) + 1
+    status, _, err = finish(start(*[arg.format(garbage=garbage) for arg in argv]), timeout=HANG_S)
+    assert status == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
