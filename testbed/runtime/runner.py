@@ -251,7 +251,8 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         return command
 
     try:
-        recorder.start(config, sim.urdf, sim.terrain)
+        recorder.start(config, sim.urdf, sim.terrain)      # in the try: a Ctrl-C meanwhile still closes the file
+        start = time.perf_counter()
         with fewer_garbage_collections():
             command = tick_once()       # t = 0: the first samples
             for step in range(steps):
