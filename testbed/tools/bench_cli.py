@@ -58,8 +58,10 @@ def bench_set_from_args(args: argparse.Namespace) -> BenchSet:
         ESTIMATORS.resolve(spec)
     faults = () if args.faults == "none" else FAULTS[1:] if args.faults == "all" else \
         _names(args.faults, "--faults", FAULTS[1:])
-    if not 1 <= args.seeds <= 10_000:
-        raise UserError(f"--seeds must be 1 ... 10000, got {args.seeds}")
+    if args.seeds < 1:
+        raise UserError(f"--seeds must be at least 1, got {args.seeds}")
+    if args.seeds > 10_000:
+        raise UserError(f"--seeds must be at most 10000, got {args.seeds}")
     if not 0 <= args.first_seed < 2**62:
         raise UserError(f"--first-seed must be 0 ... 2^62, got {args.first_seed}")
     if not 2.0 <= args.duration <= 3600.0:
@@ -78,9 +80,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for folder, option in ((args.out, "--out"), (args.cache, "--cache")):
         if folder.exists() and not folder.is_dir() or any(parent.is_file() for parent in folder.parents):
             raise UserError(f"{option} {folder} is under a file, or a file: not a folder")
+    jobs = len(bench_set.jobs(base, args.cache))    # builds (validates) every config before any run
     prepare_folder(args.out, "--out")
     prepare_folder(args.cache, "--cache")
-    jobs = len(bench_set.jobs(base, args.cache))    # builds (validates) every config before any run
     with tqdm(total=jobs, unit="walk", desc="bench") as bar:
         def progress(result: JobResult) -> None:
             bar.set_postfix_str(result.replays[0].scenario.label if result.replays else "")

@@ -29,7 +29,7 @@ from testbed.tools import profile as profile_cli
 from testbed.model.errors import ConfigError, PluginError, UserError
 from testbed.model.kinematics import UnreachableTarget
 from datasets.writer import WriterFailed
-from testbed.runtime.interrupts import STOP_SIGNALS, treat_stop_signals_as_interrupt
+from testbed.runtime.interrupts import STOP_SIGNALS, held_interrupts, treat_stop_signals_as_interrupt
 from testbed.runtime.outputs import prepare_output, write_atomically
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -141,11 +141,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"the robot cannot take its start pose with this config ({error})") from None
     recorder = dataset_commands.recorder_for(args, cfg)
     outcome = run(cfg, recorder, parts=parts)
-    if args.metrics is not None:
-        write_metrics(args.metrics, outcome.metrics)
-    print(f"recorded {recorder.path}")
+    with held_interrupts():     # the run has stopped: a late Ctrl-C changes nothing of its files
+        if args.metrics is not None:
+            write_metrics(args.metrics, outcome.metrics)
+        print(f"recorded {recorder.path}")
     if not outcome.interrupted:
         dataset_commands.after_run(args, recorder.path)
+    with held_interrupts():
+        return _report_run(cfg, outcome)
+
+
+def _report_run(cfg, outcome) -> int:
     m = outcome.metrics
     print(f"{cfg.run.terrain}/{cfg.run.contact}/{cfg.run.gait}: {m['sim_time_s']:.2f} s simulated in "
           f"{m['wall_s']:.2f} s (x{m['realtime_factor']:.2f} real time), fell={m['fell']}, "
