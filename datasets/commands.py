@@ -11,14 +11,18 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
+import struct
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from datasets.progress import show_progress
 from testbed.model.errors import UserError
+from testbed.runtime.outputs import prepare_output
 from testbed.model.registry import file_stem
 
 if TYPE_CHECKING:       # the recording side is imported by the handlers that use it: `--help` stays fast
@@ -47,13 +51,19 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --rerun-live: the viewer's address, e.g. rerun+http://127.0.0.1:9876/proxy")
     parser.add_argument("--from", dest="from_mcap", type=Path, metavar="RUN.mcap",
                         help="start from the config recorded in RUN.mcap (other options override it)")
+    add_force_argument(parser)
+
+
+def add_force_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true", help="replace output files that exist already")
 
 
 def config_from_mcap(path: str | Path) -> dict[str, Any]:
     """The resolved config recorded in a run's file, as a plain dict (`testbed.runtime.config.from_dict`)."""
     from datasets.reader import read_description
 
-    return read_description(path).config_dict()
+    with damaged_file_errors(Path(path)):
+        return read_description(path).config_dict()
 
 
 def records(args: argparse.Namespace) -> bool:
@@ -62,8 +72,9 @@ def records(args: argparse.Namespace) -> bool:
 
 
 def recorder_for(args: argparse.Namespace, config: "Config") -> "Recorder":
-    """The recorder of a `testbed run`: to --out, or to the default path under runs/; with
-    --no-record (or --out none) a NullRecorder; with a progress bar on a terminal unless --quiet."""
+    """The recorder of a `testbed run`: to --out (the output rule: `prepare_output`), or to the
+    default path under runs/; with --no-record (or --out none) a NullRecorder; with a progress bar
+    on a terminal unless --quiet."""
     from datasets.progress import ProgressRecorder
     from datasets.recorder import McapRecorder
     from testbed.runtime.recording import NullRecorder
@@ -73,11 +84,11 @@ def recorder_for(args: argparse.Namespace, config: "Config") -> "Recorder":
     recorder: "Recorder" = NullRecorder()
     _check_live(args)
     if records(args):
-        out = args.out if args.out is not None else default_run_path(config)
-        _check_output(out, "--out")
+        force = getattr(args, "force", False)
         if args.rerun is not None:
-            _check_output(args.rerun, "--rerun")
-        recorder = McapRecorder(out)
+            prepare_output(args.rerun, "--rerun", force)
+        recorder = McapRecorder(default_run_path(config)) if args.out is None else \
+            McapRecorder(prepare_output(args.out, "--out", force), replace=force)
     if args.rerun_live:
         from datasets.rerun_export import LiveRerun
 
@@ -134,6 +145,7 @@ def add_subcommands(subparsers) -> None:
     replay.add_argument("--out", type=Path, metavar="OUT.mcap", help="write the run with the replayed estimates")
     replay.add_argument("--metrics", type=Path, metavar="FILE.json", help="write the replay's metrics as JSON")
     replay.add_argument("--quiet", action="store_true", help="no progress bar (there is none when stderr is not a terminal)")
+    add_force_argument(replay)
     replay.set_defaults(handler=cmd_replay)
 
     info = subparsers.add_parser("info", help="duration, terrain, estimator, topics and metrics of a recorded run")
@@ -144,7 +156,21 @@ def add_subcommands(subparsers) -> None:
     view.add_argument("file", type=Path, metavar="RUN.mcap")
     view.add_argument("--rrd", type=Path, metavar="RUN.rrd", help="output file (default: RUN.rrd beside RUN.mcap)")
     view.add_argument("--spawn", action="store_true", help="open the Rerun viewer on it")
+    add_force_argument(view)
     view.set_defaults(handler=cmd_view)
+
+
+@contextmanager
+def damaged_file_errors(path: Path) -> Iterator[None]:
+    """A recorded message or array that does not decode, or does not fit what the testbed records,
+    as a one-line UserError (exit 2): the file is damaged or foreign."""
+    from google.protobuf.message import DecodeError
+
+    try:
+        yield
+    except (DecodeError, ValueError, IndexError, KeyError, TypeError, OverflowError, struct.error) as error:
+        text = " ".join(str(error).split())[:200]
+        raise UserError(f"{path}: damaged or foreign data ({type(error).__name__}: {text})") from None
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -152,13 +178,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from datasets.replay import replay
     from testbed.runtime.metrics import write_metrics
 
+    if args.estimator == "none":
+        raise UserError("replay needs an estimator to feed: --estimator none has nothing to replay")
     if args.metrics is not None:
-        _check_output(args.metrics, "--metrics")
+        prepare_output(args.metrics, "--metrics", args.force)
     if args.out is not None:
-        _check_output(args.out, "--out")
         if args.out.resolve() == args.file.resolve():
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
-    result = replay(args.file, args.estimator, args.out, with_progress if show_progress(args.quiet) else iter)
+        prepare_output(args.out, "--out", args.force)
+    with damaged_file_errors(args.file):
+        result = replay(args.file, args.estimator, args.out, with_progress if show_progress(args.quiet) else iter)
     if result.truncation_note:
         print(f"testbed: warning: {result.truncation_note}", file=sys.stderr)
     if args.metrics is not None:
@@ -174,14 +203,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     from datasets.info import describe
 
-    print(describe(args.file))
+    with damaged_file_errors(args.file):
+        text = describe(args.file)
+    print(text)
     return EXIT_OK
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     rrd = args.rrd if args.rrd is not None else args.file.with_suffix(".rrd")
-    _check_output(rrd, "--rrd")
-    _export(args.file, rrd)
+    prepare_output(rrd, "--rrd", args.force)
+    with damaged_file_errors(args.file):
+        _export(args.file, rrd)
     if args.spawn:
         spawn_viewer(rrd)
     return EXIT_OK
@@ -198,7 +230,10 @@ def _export(mcap_path: str | Path, rrd: Path) -> None:
         raise UserError(f"{mcap_path} holds no messages to view" + (f" ({recording.truncated})" if recording.truncated else ""))
     if recording.truncation_note():
         print(f"testbed: warning: {recording.truncation_note()}", file=sys.stderr)
-    export_rrd(recording, rrd)
+    try:
+        export_rrd(recording, rrd)
+    except RuntimeError as error:       # the Rerun SDK's failures to write (a full disk)
+        raise OSError(f"writing {rrd} failed: {' '.join(str(error).split())}") from None
     print(f"wrote {rrd}")
 
 
@@ -213,16 +248,6 @@ def spawn_viewer(rrd: Path) -> None:
         return
     subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def _check_output(path: Path, option: str) -> None:
-    if path.is_dir():
-        raise UserError(f"{option} {path} is a directory")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"{option} {path}: folder {parent} is not writable")
 
 
 def _deg(value: float | None) -> str:

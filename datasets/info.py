@@ -13,16 +13,33 @@ METRIC_ORDER = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_
                 "realtime_factor", "sim_time_s", "wall_s")
 
 
+LOG_TIME_SLACK_S = 1.0      # s: messages may be stamped this far past the configured duration
+
+
 def describe(path: str | Path) -> str:
+    """UserError (exit 2) for a testbed file cut before its config or whose config does not read."""
     recording = read_recording(path, topics=())
+    if recording.run_info() or "config" in recording.metadata or recording.truncated:
+        recording.config()
     return "\n".join(_header(recording) + _topics(recording) + _metrics(recording))
+
+
+def _state(recording: Recording) -> str:
+    if recording.truncated is not None:
+        return f"TRUNCATED: {recording.truncated}"
+    limit = recording.config().run.duration + LOG_TIME_SLACK_S
+    if recording.duration_s() > limit:
+        return (f"DAMAGED: messages stamped up to {recording.duration_s():.6g} s, beyond the configured "
+                f"{limit - LOG_TIME_SLACK_S:g} s")
+    return "complete"
 
 
 def _header(recording: Recording) -> list[str]:
     run = recording.run_info()
     size = recording.path.stat().st_size
     duration = recording.duration_s()
-    state = "complete" if recording.truncated is None else f"TRUNCATED: {recording.truncated}"
+    state = _state(recording) if "config" in recording.metadata else (
+        "complete" if recording.truncated is None else f"TRUNCATED: {recording.truncated}")
     lines = [f"{recording.path}: {_megabytes(size)} ({state})"]
     if run:
         lines.append(f"terrain {run.get('terrain', '?')}, estimator {run.get('estimator', '?')}, "
@@ -32,6 +49,8 @@ def _header(recording: Recording) -> list[str]:
     else:
         lines.append("no testbed run description (not written by testbed run)")
     per_second = f", {size / duration / 1000:.0f} kB per simulated second" if duration > 0 else ""
+    if "config" in recording.metadata and duration > recording.config().run.duration + LOG_TIME_SLACK_S:
+        duration = 0.0      # a damaged time stamp says nothing of the run's length
     lines.append(f"duration {duration:.3f} s of simulated time, {recording.message_count()} messages{per_second}")
     error = recording.outcome().get("error")
     if error:

@@ -12,6 +12,8 @@ import importlib
 import json
 import math
 import struct
+import zlib
+from xml.etree import ElementTree
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, field, fields
 from functools import partial
@@ -28,7 +30,8 @@ from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Footer, Message, Metadata, Schema
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
+from mcap.stream_reader import CRCValidationError, StreamReader
+import zstandard
 
 from datasets import codec, heightmap_store, schemas
 from datasets.scoring import ScoringTruth
@@ -47,6 +50,9 @@ ALL_TOPICS = None
 # Record layouts of the MCAP specification (little-endian): every record starts with its opcode
 # and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
 # channel id, sequence, log and publish time, then the data.
+MAX_CHUNK_BYTES = 64 * 2**20     # a chunk's records, decompressed (the testbed writes at most 8 MiB)
+MAX_RECORD_BYTES = 256 * 2**20   # one record of the file (a chunk, compressed; an attachment)
+MAX_JSON_DEPTH = 64              # nesting of the recorded JSON (config, metrics)
 RECORD_HEADER = struct.Struct("<BQ")
 MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")       # record header, channel id, length of the pairs
 MESSAGE_HEADER = struct.Struct("<BQHIQQ")
@@ -88,10 +94,12 @@ class Recording:
 
     def config_dict(self) -> dict[str, Any]:
         """The recorded config; a recorded height map is restored to a file it names."""
-        try:
-            config = json.loads(self.metadata["config"]["json"])
-        except (KeyError, json.JSONDecodeError):
-            raise UserError(f"{self.path} holds no testbed run config: not a testbed dataset") from None
+        if "config" not in self.metadata:
+            raise UserError(f"{self.path} holds no testbed run config: not a testbed dataset"
+                            + (f" (it is truncated: {self.truncated})" if self.truncated else ""))
+        config = _recorded_json(self.metadata["config"].get("json"), f"{self.path}: its recorded config")
+        if not isinstance(config, dict):
+            raise UserError(f"{self.path}: its recorded config is damaged (not a JSON table)")
         return heightmap_store.restored_config(config, self.attachments, self.path)
 
     def config(self) -> Config:
@@ -106,14 +114,22 @@ class Recording:
     def metrics(self) -> dict | None:
         """The metrics the run stored when it finished; None for a file cut before that."""
         text = self.metadata.get("metrics", {}).get("json")
-        return None if text is None else json.loads(text)
+        if text is None:
+            return None
+        metrics = _recorded_json(text, f"{self.path}: its recorded metrics")
+        if not isinstance(metrics, dict):
+            raise UserError(f"{self.path}: its recorded metrics are damaged (not a JSON table)")
+        return metrics
 
     def outcome(self) -> dict[str, str]:
         return dict(self.metadata.get("outcome", {}))
 
     def urdf(self) -> str | None:
         data = self.attachments.get("robot.urdf")
-        return None if data is None else data.decode()
+        try:
+            return None if data is None else data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise UserError(f"{self.path}: its robot.urdf attachment is not UTF-8 text") from None
 
     def duration_s(self) -> float:
         ends = [stats.last_ns for stats in self.topics.values() if stats.last_ns is not None]
@@ -281,7 +297,7 @@ def read_recording(path: str | Path, topics: Collection[str] | None = ALL_TOPICS
     recording = Recording(path)
     state = _ReadState(recording, topics)
     with path.open("rb") as stream:
-        for record in _records(StreamReader(stream, emit_chunks=True, validate_crcs=True), recording):
+        for record in _records(_stream_reader(stream), recording):
             if not isinstance(record, Chunk):
                 state.take(record)
                 continue
@@ -341,8 +357,91 @@ def _take_chunk(stream: BinaryIO, chunk_index: ChunkIndex, state: _ReadState) ->
 def chunk_records(stream: BinaryIO, chunk_index: ChunkIndex) -> bytes:
     """The decompressed records of the chunk that `chunk_index` points to, its CRC checked."""
     stream.seek(chunk_index.chunk_start_offset + RECORD_HEADER.size)
-    data_stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(stream)), validate_crc=True)
-    return data_stream.read(size)
+    return chunk_data(Chunk.read(ReadDataStream(stream)))
+
+
+URDF_ELEMENTS = frozenset({"robot", "link", "joint", "visual", "collision", "inertial", "origin", "geometry", "box",
+                           "cylinder", "sphere", "capsule", "material", "color", "axis", "parent", "child", "limit",
+                           "mass", "inertia", "dynamics", "safety_controller", "calibration", "mimic"})
+MAX_URDF_BYTES = 2**20
+MAX_URDF_DEPTH = 8
+
+
+def primitive_urdf(text: str, source: Path | str) -> str:
+    """`text` if it is a URDF of primitive shapes only (boxes, cylinders, spheres, as the testbed
+    writes), else UserError: a recorded URDF comes from an untrusted file, and a mesh or texture
+    would make the viewer read a file of this machine that the URDF names."""
+    if len(text) > MAX_URDF_BYTES:
+        raise UserError(f"{source}: its robot.urdf is larger than {MAX_URDF_BYTES // 1024} kB")
+    if "<!" in text:
+        raise UserError(f"{source}: its robot.urdf declares a DOCTYPE or entities, which are not read")
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError as error:
+        raise UserError(f"{source}: its robot.urdf is not XML ({error})") from None
+    if root.tag != "robot":
+        raise UserError(f"{source}: its robot.urdf is not a URDF (root element <{root.tag[:40]}>)")
+    for element, depth in _elements(root, 1):
+        if depth > MAX_URDF_DEPTH:
+            raise UserError(f"{source}: its robot.urdf is nested more than {MAX_URDF_DEPTH} deep")
+        if element.tag not in URDF_ELEMENTS or "filename" in element.attrib:
+            raise UserError(f"{source}: its robot.urdf has a <{str(element.tag)[:40]}> element: only primitive "
+                            "geometry (box, cylinder, sphere) is loaded, never a file it names")
+    return text
+
+
+def _elements(element: ElementTree.Element, depth: int) -> Iterator[tuple[ElementTree.Element, int]]:
+    yield element, depth
+    for child in element:
+        yield from _elements(child, depth + 1)
+
+
+class UnsupportedChunk(ValueError):
+    """A chunk this reader does not decompress: an unsupported compression, or larger than MAX_CHUNK_BYTES."""
+
+
+def chunk_data(chunk: Chunk) -> bytes:
+    """A chunk's records, decompressed into at most MAX_CHUNK_BYTES (a compressed chunk that
+    expands beyond its declared size is refused, not decompressed), its CRC checked."""
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        raise UnsupportedChunk(f"a chunk declares {chunk.uncompressed_size} bytes of records, more than "
+                               f"{MAX_CHUNK_BYTES // 2**20} MiB")
+    if chunk.compression == "zstd":
+        reader = zstandard.ZstdDecompressor().stream_reader(BytesIO(chunk.data))
+        data = reader.read(chunk.uncompressed_size + 1)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise UnsupportedChunk(f"a chunk uses the unsupported compression '{chunk.compression[:20]}' "
+                               "(this reader reads zstd and uncompressed chunks)")
+    if len(data) != chunk.uncompressed_size:
+        raise UnsupportedChunk(f"a chunk's records are not the {chunk.uncompressed_size} bytes it declares")
+    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise CRCValidationError(expected=chunk.uncompressed_crc, actual=zlib.crc32(data), record=chunk)
+    return data
+
+
+def _recorded_json(text: Any, what: str) -> Any:
+    """Recorded JSON (config, metrics), nested at most MAX_JSON_DEPTH deep; UserError if it is not."""
+    if not isinstance(text, str):
+        raise UserError(f"{what} is missing")
+    depth = max(_running_depth(text), default=0)
+    if depth > MAX_JSON_DEPTH:
+        raise UserError(f"{what} is damaged (JSON nested {depth} deep, at most {MAX_JSON_DEPTH})")
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise UserError(f"{what} is damaged (not JSON: {type(error).__name__})") from None
+
+
+def _running_depth(text: str) -> Iterator[int]:
+    depth = 0
+    for character in text:
+        if character in "[{":
+            depth += 1
+            yield depth
+        elif character in "]}":
+            depth -= 1
 
 
 def message_index_pairs(stream: BinaryIO, index_offset: int) -> np.ndarray:
@@ -411,8 +510,8 @@ def _chunk_records(chunk: Chunk) -> Iterator[Any]:
     """The records of a chunk. Messages are sliced out of the decompressed bytes directly, which is
     several times faster than mcap's record-by-record stream parsing; schemas and channels are
     parsed by mcap; other records are skipped."""
-    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-    data = stream.read(size)
+    data = chunk_data(chunk)
+    size = len(data)
     offset = 0
     while offset < size:
         opcode, length = RECORD_HEADER.unpack_from(data, offset)
@@ -436,7 +535,7 @@ def read_description(path: str | Path) -> Recording:
     _check_is_mcap(path)
     recording = Recording(path)
     with path.open("rb") as stream:
-        for record in _records(StreamReader(stream, emit_chunks=True, validate_crcs=True), recording):
+        for record in _records(_stream_reader(stream), recording):
             if isinstance(record, Metadata):
                 recording.metadata[record.name] = dict(record.metadata)
             elif isinstance(record, Attachment):
@@ -444,6 +543,10 @@ def read_description(path: str | Path) -> Recording:
             elif isinstance(record, Chunk) and "config" in recording.metadata:
                 break
     return recording
+
+
+def _stream_reader(stream: BinaryIO) -> StreamReader:
+    return StreamReader(stream, emit_chunks=True, validate_crcs=True, record_size_limit=MAX_RECORD_BYTES)
 
 
 def _records(reader: StreamReader, recording: Recording) -> Iterator[Any]:
@@ -470,6 +573,8 @@ def _describe(error: Exception) -> str:
         return "it is cut short in the middle of a record"
     if isinstance(error, CRCValidationError):
         return "a chunk fails its CRC check"
+    if isinstance(error, UnsupportedChunk):
+        return str(error)
     text = str(error).splitlines()[0] if str(error) else ""
     return f"a record is unreadable ({type(error).__name__}{': ' + text if text else ''})"
 
@@ -479,6 +584,8 @@ def _check_is_mcap(path: Path) -> None:
         raise UserError(f"{path}: no such file")
     if path.is_dir():
         raise UserError(f"{path} is a directory, not an MCAP file")
+    if not path.is_file():
+        raise UserError(f"{path} is not a regular file (a FIFO or a device is not read)")
     try:
         with path.open("rb") as stream:
             magic = stream.read(len(MCAP_MAGIC))

@@ -19,6 +19,9 @@
   (`datasets.signals`); `finish`, which the run loop calls after an interrupt or a divergence
   too, hands over what is pending, the metrics and the summary, and returns when the writer has
   closed and renamed the file.
+- Two processes recording to the same path: the second stops at `start` with OutputBusy (the
+  `.partial` file is locked while written); the final rename replaces an existing file only with
+  `replace`.
 - A write that fails (a full disk) is raised as `WriterFailed` at the next handover or by `finish`;
   the file is not written any further and keeps its `.partial` name.
 - Sensor samples, estimates, the body pose and the feet (what scoring reads) are recorded at every
@@ -36,11 +39,11 @@ from typing import TYPE_CHECKING
 
 from datasets import codec, schemas
 from datasets.signals import sigint_deferred
-from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, WriterFailed, WriterProcess, partial_path_of
+from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, OutputBusy, WriterFailed, WriterProcess, partial_path_of
 from testbed.runtime.parts import part_sources
 from testbed.runtime.recording import Tick
 
-__all__ = ["FLUSH_PERIOD", "PARTIAL_SUFFIX", "TRUTH_RATE", "DatasetWriter", "McapRecorder", "WriterFailed",
+__all__ = ["FLUSH_PERIOD", "PARTIAL_SUFFIX", "TRUTH_RATE", "DatasetWriter", "McapRecorder", "OutputBusy", "WriterFailed",
            "run_description", "truth_every"]
 
 if TYPE_CHECKING:
@@ -54,8 +57,12 @@ FLUSH_PERIOD = 0.5          # s of simulated time per chunk
 class McapRecorder:
     """Implements `testbed.runtime.recording.Recorder`."""
 
-    def __init__(self, path: str | Path, truth_rate: float = TRUTH_RATE, flush_period: float = FLUSH_PERIOD):
+    def __init__(self, path: str | Path, truth_rate: float = TRUTH_RATE, flush_period: float = FLUSH_PERIOD,
+                 replace: bool = True):
+        """`replace`: the finished file may replace an existing one (else `finish` raises OutputBusy
+        if the name was taken meanwhile, and the file keeps its `.partial` name)."""
         self.path = Path(path)
+        self.replace = replace
         self.truth_rate = truth_rate
         self.flush_period = flush_period
         self.busy_s = 0.0               # wall time spent inside the recorder
@@ -82,7 +89,9 @@ class McapRecorder:
     def start(self, config: "Config", urdf: str, terrain: "Terrain") -> None:
         started = time.perf_counter()
         self._every = truth_every(config.run.time_step, self.truth_rate)
-        self._dataset = WriterProcess(self.path, run_description(config, self._every, self.truth_rate), config, urdf)
+        with sigint_deferred():     # a Ctrl-C now would leave the writer without its file's head
+            self._dataset = WriterProcess(self.path, run_description(config, self._every, self.truth_rate), config,
+                                          urdf, self.replace)
         boxes = terrain.boxes
         terrain_data = codec.terrain_message(boxes.centers, boxes.half_extents, boxes.rotations, terrain.name)
         description = codec.robot_description_message(urdf)

@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from datasets import codec, schemas
 from datasets.links import LinkTree
-from datasets.reader import Recording
+from datasets.reader import Recording, primitive_urdf
 from estimators.scoring import roll_pitch_yaw
 from sensors.samples import ImuSample
 
@@ -61,12 +61,16 @@ def export_rrd(recording: Recording, rrd_path: str | Path) -> Path:
     partial = rrd_path.with_name(rrd_path.name + ".partial")
     _, positions, _ = recording.poses()
     rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(recording))
-    rec.save(partial, default_blueprint=blueprint(positions[0] if len(positions) else np.zeros(3)))
     try:
-        _log_run(rec, recording)
-    finally:
-        rec.disconnect()
-    partial.replace(rrd_path)
+        rec.save(partial, default_blueprint=blueprint(positions[0] if len(positions) else np.zeros(3)))
+        try:
+            _log_run(rec, recording)
+        finally:
+            rec.disconnect()
+        partial.replace(rrd_path)
+    except BaseException:
+        partial.unlink(missing_ok=True)     # nothing half-written is left behind
+        raise
     return rrd_path
 
 
@@ -172,6 +176,7 @@ def _log_robot(rec: rr.RecordingStream, recording: Recording, states: list) -> N
     urdf = recording.urdf()
     if not urdf:
         return
+    primitive_urdf(urdf, recording.path)
     estimates = recording.estimates()
     model = RobotModel.log(rec, urdf, ghost=bool(estimates))
     body_t = np.array([s.t for s in states]) if states else t

@@ -63,25 +63,66 @@ ENDED_OUTCOME = {"error": "the recording process ended without closing the file"
 Message = tuple[int, int, bytes, int]       # channel id, log time (ns, also the publish time), data, sequence
 
 
-class WriterFailed(Exception):
+class WriterFailed(OSError):
     """A write to the dataset failed; the file was left as it was then."""
+
+
+class OutputBusy(WriterFailed):
+    """Another process is writing the same file."""
 
 
 def partial_path_of(path: Path) -> Path:
     return path.with_name(path.name + PARTIAL_SUFFIX)
 
 
+def open_partial(path: Path) -> IO[bytes]:
+    """`path`'s temporary file, created or emptied, opened for writing and locked (flock) for as
+    long as any process holds it open: a second process writing to the same path stops here with
+    OutputBusy instead of emptying the first one's file."""
+    partial = partial_path_of(path)
+    while True:
+        descriptor = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(descriptor)
+            raise OutputBusy(f"{path} is being written by another process (its {partial.name} is locked)") from None
+        try:
+            same = os.path.samestat(os.fstat(descriptor), os.stat(partial))
+        except FileNotFoundError:       # renamed away meanwhile by the process that held it
+            same = False
+        if same:
+            os.ftruncate(descriptor, 0)
+            return os.fdopen(descriptor, "wb")
+        os.close(descriptor)
+
+
+def publish(partial: Path, path: Path, replace: bool) -> None:
+    """Give the finished temporary file its final name; unless `replace`, only if that name is free
+    (else OutputBusy, and the file keeps its temporary name)."""
+    if replace:
+        os.replace(partial, path)
+        return
+    try:
+        os.link(partial, path)
+    except FileExistsError:
+        raise OutputBusy(f"{path} was created by another process meanwhile: this run is kept as {partial}") from None
+    os.unlink(partial)
+
+
 class DatasetWriter:
     """An MCAP file of the dataset format: every topic registered, the run description first,
     written under a temporary name until `close`."""
 
-    def __init__(self, path: str | Path, stream: IO[bytes] | None = None):
-        """Write to `stream` if given (the temporary file, opened), else create the temporary file."""
+    def __init__(self, path: str | Path, stream: IO[bytes] | None = None, replace: bool = True):
+        """Write to `stream` if given (the temporary file, opened), else create the temporary file;
+        `replace`: the final name may replace an existing file."""
         self.path = Path(path)
         self.partial_path = partial_path_of(self.path)
+        self.replace = replace
         if stream is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            stream = open(self.partial_path, "wb")
+            stream = open_partial(self.path)
         self._file = stream
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._failure: BaseException | None = None
@@ -116,9 +157,10 @@ class DatasetWriter:
         self.closed = True
         try:
             self._writing(self._finish, metrics, outcome)
+            self._file.flush()
+            if rename:      # before closing: the lock keeps another writer of the same path out until then
+                publish(self.partial_path, self.path, self.replace)
             self._file.close()
-            if rename:
-                os.replace(self.partial_path, self.path)
         finally:
             if not self._file.closed:
                 self._close_quietly()
@@ -241,7 +283,8 @@ class WriterProcess:
     """A `DatasetWriter` in a forked process, fed through a pipe: `write` hands a batch over and
     returns, `close` returns when the file is closed and renamed."""
 
-    def __init__(self, path: str | Path, run_info: dict[str, str], config: "Config", urdf: str):
+    def __init__(self, path: str | Path, run_info: dict[str, str], config: "Config", urdf: str,
+                 replace: bool = True):
         """Create the temporary file (its errors are raised here), fork the writer, have it write
         the file's head and the run description, and wait until it has."""
         self.path = Path(path)
@@ -249,10 +292,10 @@ class WriterProcess:
         self.closed = False
         description = RunDescription.of(run_info, config, urdf)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        stream = open(self.partial_path, "wb")
+        stream = open_partial(self.path)
         self._connection, writer_end = link_pair()
         try:
-            self.pid = _fork_writer(self.path, stream, description, writer_end, self._connection)
+            self.pid = _fork_writer(self.path, stream, description, writer_end, self._connection, replace)
         finally:
             writer_end.close()
             stream.close()          # nothing was written to it here: the writer has its own copy
@@ -260,6 +303,8 @@ class WriterProcess:
             self.channels: dict[str, int] = self._reply("ready")
         except WriterFailed:
             self._stop_waiting()
+            if self.partial_path.exists() and not self.partial_path.stat().st_size:
+                self.partial_path.unlink()
             raise
 
     def write(self, messages: list[Message], flush: bool) -> None:
@@ -320,9 +365,9 @@ class WriterProcess:
 
 
 def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,
-                 parent_end: Link) -> int:
-    """Fork the writer process with SIGINT and SIGTERM ignored from its first instruction on."""
-    stopping = {signal.SIGINT, signal.SIGTERM}
+                 parent_end: Link, replace: bool) -> int:
+    """Fork the writer process with SIGINT, SIGTERM and SIGHUP ignored from its first instruction on."""
+    stopping = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
     blocked = signal.pthread_sigmask(signal.SIG_BLOCK, stopping)
     try:
         pid = os.fork()
@@ -331,19 +376,20 @@ def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, con
                 signal.signal(signum, signal.SIG_IGN)
             signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
             parent_end.close()
-            _run_writer(path, stream, description, connection)
+            _run_writer(path, stream, description, connection, replace)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
     return pid
 
 
-def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
+def _run_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,
+                replace: bool) -> None:
     """The writer process's life; it leaves through `os._exit` (no handlers of the parent run)."""
     gc.disable()        # its messages make no reference cycles; collecting would copy the parent's pages
     _yield_to_the_run_loop()
     status = 1
     try:
-        _serve(path, stream, description, connection)
+        _serve(path, stream, description, connection, replace)
         status = 0
     finally:
         os._exit(status)
@@ -358,14 +404,19 @@ def _yield_to_the_run_loop() -> None:
         pass
 
 
-def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link) -> None:
+def _serve(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,
+           replace: bool) -> None:
     try:
-        dataset = DatasetWriter(path, stream)
+        dataset = DatasetWriter(path, stream, replace)
         dataset.describe(description)
     except Exception as error:
-        connection.send(("failed", _one_line(error)))
+        _tell(connection, ("failed", _one_line(error)))
         return
-    connection.send(("ready", dataset.channels))
+    try:
+        connection.send(("ready", dataset.channels))
+    except OSError:         # the recording process ended meanwhile (a Ctrl-C): keep a valid file
+        dataset.close({}, ENDED_OUTCOME, rename=False)
+        return
     _write_batches(dataset, connection)
 
 
@@ -386,7 +437,7 @@ def _write_batches(dataset: DatasetWriter, connection: Link) -> None:
             writes[command](*args)
         except Exception as error:
             if not reported:
-                connection.send(("failed", _one_line(error)))
+                _tell(connection, ("failed", _one_line(error)))
                 reported = True
 
 
@@ -394,9 +445,17 @@ def _close(dataset: DatasetWriter, args: list, connection: Link) -> None:
     try:
         dataset.close(*args)
     except Exception as error:
-        connection.send(("failed", _one_line(error)))
+        _tell(connection, ("failed", _one_line(error)))
     else:
-        connection.send(("closed", None))
+        _tell(connection, ("closed", None))
+
+
+def _tell(connection: Link, message: tuple) -> None:
+    """Answer the recording process, if it is still there to listen."""
+    try:
+        connection.send(message)
+    except OSError:
+        pass
 
 
 def _one_line(error: BaseException) -> str:

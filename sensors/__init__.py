@@ -2,6 +2,7 @@
 
 The sample types are what estimators and controllers receive."""
 
+import testbed  # noqa: F401 - first: it chooses numba's cache folder before numba is imported
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
 from sensors.sensor import Sensor, SensorContext
 

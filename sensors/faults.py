@@ -106,7 +106,7 @@ def _array_channels(rest: list[str]) -> tuple[int | None, tuple[int, ...] | None
     if not rest:
         return None, None
     index, *axis = rest
-    if not index.isdigit() or len(axis) > 1:
+    if not (index.isascii() and index.isdigit()) or len(axis) > 1:
         raise _SpecError("an accel_array channel is a member index (0, 1, ...), optionally followed by .x, .y or .z")
     return int(index), (_axis(axis[0]),) if axis else None
 
@@ -137,7 +137,7 @@ def _axis(text: str) -> int:
 
 def _leg(text: str) -> int:
     number = text.removeprefix("leg")
-    if not (text.startswith("leg") and number.isdigit() and 1 <= int(number) <= LEGS):
+    if not (text.startswith("leg") and number.isascii() and number.isdigit() and 1 <= int(number) <= LEGS):
         raise _SpecError(f"unknown leg '{text}' (leg1 ... leg{LEGS})")
     return int(number) - 1
 

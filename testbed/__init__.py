@@ -14,6 +14,10 @@ import sys
 from importlib import import_module
 from importlib.util import find_spec
 
+from testbed import numba_cache
+
+numba_cache.configure()     # before any kernel module imports numba
+
 _EXPORTS = {
     "run": "testbed.api", "load": "testbed.api", "replay": "testbed.api", "Result": "testbed.api",
     "Dataset": "testbed.api",

@@ -9,6 +9,8 @@ from testbed.control.posture import POSTURE_LAWS
 from testbed.control.startup import CalibrationPoses
 from testbed.model.validation import finite, non_negative, positive, require
 
+MAX_TARGET_M = 1000.0       # m, farther than a run of a day's walking reaches
+
 @dataclass(frozen=True)
 class GaitConfig:
     speed: float
@@ -38,6 +40,8 @@ class GaitConfig:
         require(abs(self.turn_rate) <= 2.0, f"gait.turn_rate must lie within +-2 rad/s, got {self.turn_rate}")
         require(len(self.target) in (0, 2), "gait.target must be [] or [x, y]")
         finite("gait.target", *self.target)
+        require(all(abs(value) <= MAX_TARGET_M for value in self.target),
+                f"gait.target must lie within {MAX_TARGET_M:g} m of the start, got {list(self.target)}")
         positive("gait.target_tolerance", self.target_tolerance)
         positive("gait touch-down search", self.touchdown_search_speed, self.touchdown_search_depth)
         positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,

@@ -57,6 +57,9 @@ class RunConfig:
         require(0 <= self.seed < 2**63, f"run.seed must be a non-negative integer, got {self.seed}")
         positive("run.time_step", self.time_step)
         require(self.time_step <= 0.01, f"run.time_step {self.time_step} s is too coarse for contact (max 0.01)")
+        require(self.duration / self.time_step <= MAX_STEPS,
+                f"run.duration / run.time_step is {self.duration / self.time_step:.3g} physics steps, more than "
+                f"{MAX_STEPS} (a day at 1 kHz)")
         positive("run.gravity", self.gravity)
 
 
@@ -175,10 +178,22 @@ def from_dict(data: dict[str, Any]) -> Config:
     return _build(Config, data)
 
 
+MAX_CONFIG_BYTES = 2**20    # a config file is a few kB
+MAX_STEPS = 86_400_000      # physics steps of one run: a day at 1 kHz
+
+
 def read_toml(path: str | Path) -> dict[str, Any]:
+    """A TOML config file: a regular file (not a FIFO or a device, which could block or never end)
+    of at most MAX_CONFIG_BYTES."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"config file {path} is not a regular file")
+        with open(path, "rb") as stream:
+            data = stream.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {path} is larger than {MAX_CONFIG_BYTES // 1024} kB")
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
     except (OSError, UnicodeDecodeError) as error:

@@ -25,6 +25,7 @@ from testbed.control.command import Command
 from testbed.control.controller import CONTROLLERS, Controller, checked_targets
 from testbed.control.pilot import Pilot
 from testbed.model.errors import PluginError, PluginFailure, SimulationDiverged
+from testbed.runtime.interrupts import held_interrupts
 from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
@@ -144,11 +145,11 @@ def fewer_garbage_collections() -> Iterator[None]:
         gc.unfreeze()
 
 
-def compilation_timer() -> ContextManager[TimingListener]:
-    """Measures the time numba spends compiling kernels meanwhile (`.duration` once `.done`):
-    a run that compiles reports it as `compile_s` and leaves it out of `wall_s` and
-    `realtime_factor`. Kernels loaded from numba's cache do not count."""
-    return install_listener("numba:compile", TimingListener())
+def compilation_timer(listener: TimingListener) -> ContextManager[TimingListener]:
+    """Measures into `listener` the time numba spends compiling kernels meanwhile (`.duration`
+    once `.done`): a run that compiles reports it as `compile_s` and leaves it out of `wall_s`
+    and `realtime_factor`. Kernels loaded from numba's cache do not count."""
+    return install_listener("numba:compile", listener)
 
 
 class Parts(NamedTuple):
@@ -196,6 +197,8 @@ def _guarded(method, spec: str, what: str):
         except (KeyboardInterrupt, SimulationDiverged, PluginFailure):
             raise
         except Exception as error:
+            if is_interrupt(error):     # a Ctrl-C inside a compiled kernel's callback
+                raise KeyboardInterrupt from None
             raise PluginFailure(f"'{spec}' failed in {what} at run time: {type(error).__name__}: {error}") from None
     return call
 
@@ -261,7 +264,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     steps = int(round(config.run.duration / config.run.time_step))
     footprint = sim.terrain.footprint()
     outcome = RunOutcome(metrics={})
-    recorder.start(config, sim.urdf, sim.terrain)
+    compiling = TimingListener()
     start = time.perf_counter()
     def tick_once():
         """Sensors, estimator, controller and recorder after the simulation reached its current state."""
@@ -276,7 +279,9 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         return command
 
     try:
-        with fewer_garbage_collections(), compilation_timer() as compiling:
+        recorder.start(config, sim.urdf, sim.terrain)      # in the try: a Ctrl-C meanwhile still closes the file
+        start = time.perf_counter()
+        with fewer_garbage_collections(), compilation_timer(compiling):
             command = tick_once()       # t = 0: the first samples
             for step in range(steps):
                 sim.step(command.joint_targets)
@@ -297,8 +302,9 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
         outcome.error = f"interrupted at t = {sim.time:.3f} s"
     compile_s = compiling.duration if compiling.done else 0.0
     wall = time.perf_counter() - start - compile_s
-    outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
-    outcome.metrics["compile_s"] = compile_s
-    outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
-    recorder.finish(outcome.metrics, outcome.error)
+    with held_interrupts():     # the run has stopped: a further Ctrl-C must not cut the closing of its file
+        outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
+        outcome.metrics["compile_s"] = compile_s
+        outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
+        recorder.finish(outcome.metrics, outcome.error)
     return outcome

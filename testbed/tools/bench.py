@@ -25,6 +25,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+
+import platformdirs
 from typing import Any
 
 import numpy as np
@@ -35,7 +37,7 @@ from testbed.runtime.config import Config
 from testbed.model.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[2]
-CACHE = ROOT / ".cache" / "bench"
+CACHE = Path(platformdirs.user_cache_dir("hexapod-testbed")) / "bench"    # ~/.cache/hexapod-testbed/bench on Linux
 TERRAINS = ("flat", "slope", "step", "rough")
 BASELINES = ("madgwick", "mahony", "vqf")          # the EKF must beat each of these on every terrain
 FAULTS = ("none", "accel_spikes", "encoder_dropout", "gyro_bias_step")

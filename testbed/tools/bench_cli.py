@@ -12,6 +12,7 @@ from tqdm import tqdm
 from estimators.registry import ESTIMATORS
 from testbed.model.errors import UserError
 from testbed.runtime import config as config_module
+from testbed.runtime.outputs import prepare_folder
 from testbed.tools import bench_report
 from testbed.tools.bench import (CACHE, FAULTS, ROOT, TERRAINS, Base, BenchSet, JobResult, run_bench, summary_rows,
                                  target_checks)
@@ -32,7 +33,7 @@ def add_subcommands(subparsers) -> None:
     parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
     parser.add_argument("--workers", type=int, default=2, metavar="N", help="processes (default 2)")
     parser.add_argument("--cache", type=Path, default=CACHE, metavar="DIR",
-                        help=f"dataset cache (default {CACHE.relative_to(ROOT)})")
+                        help=f"dataset cache (default {CACHE}, the user's cache folder)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR",
                         help="write results.md, results.csv, results.json and the plots here")
     parser.set_defaults(handler=cmd_bench)
@@ -59,10 +60,14 @@ def bench_set_from_args(args: argparse.Namespace) -> BenchSet:
         _names(args.faults, "--faults", FAULTS[1:])
     if args.seeds < 1:
         raise UserError(f"--seeds must be at least 1, got {args.seeds}")
-    if not (args.duration >= 2.0 and math.isfinite(args.duration)):
+    if args.seeds > 10_000:
+        raise UserError(f"--seeds must be at most 10000, got {args.seeds}")
+    if not 0 <= args.first_seed < 2**62:
+        raise UserError(f"--first-seed must be 0 ... 2^62, got {args.first_seed}")
+    if not 2.0 <= args.duration <= 3600.0:
         raise UserError(f"--duration must be at least 2 s (the first second is not scored), got {args.duration}")
-    if args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
+    if not 1 <= args.workers <= 1024:
+        raise UserError(f"--workers must be 1 ... 1024, got {args.workers}")
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
     fault_estimators = tuple(name for name in estimators if name != "ukf") or estimators
     return BenchSet(terrains, seeds, args.duration, estimators, faults, terrains, seeds, fault_estimators,
@@ -72,9 +77,12 @@ def bench_set_from_args(args: argparse.Namespace) -> BenchSet:
 def cmd_bench(args: argparse.Namespace) -> int:
     bench_set = bench_set_from_args(args)
     base = Base(config_module.read_toml(args.config) if args.config is not None else None, args.sensors)
-    if args.out.exists() and not args.out.is_dir():
-        raise UserError(f"--out {args.out} is not a folder")
+    for folder, option in ((args.out, "--out"), (args.cache, "--cache")):
+        if folder.exists() and not folder.is_dir() or any(parent.is_file() for parent in folder.parents):
+            raise UserError(f"{option} {folder} is under a file, or a file: not a folder")
     jobs = len(bench_set.jobs(base, args.cache))    # builds (validates) every config before any run
+    prepare_folder(args.out, "--out")
+    prepare_folder(args.cache, "--cache")
     with tqdm(total=jobs, unit="walk", desc="bench") as bar:
         def progress(result: JobResult) -> None:
             bar.set_postfix_str(result.replays[0].scenario.label if result.replays else "")

@@ -5,6 +5,10 @@ Bad input gives one line on stderr and exit code 2, with nothing written.
 
 from __future__ import annotations
 
+from testbed.tools import interrupted_quietly  # first: a Ctrl-C during the imports below exits 130, quietly
+
+interrupted_quietly.during_imports(__name__ == "__main__")
+
 import argparse
 import importlib
 import os
@@ -17,6 +21,8 @@ from typing import Any, Sequence
 from datasets import commands as dataset_commands
 from testbed.model.errors import ConfigError, PluginError, UserError
 from testbed.model.registry import Registry
+from testbed.runtime.interrupts import STOP_SIGNALS, held_interrupts, treat_stop_signals_as_interrupt
+from testbed.runtime.outputs import prepare_output, write_atomically
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -67,6 +73,8 @@ def _deep_update(target: dict[str, Any], update: dict[str, Any]) -> None:
     for key, value in update.items():
         if isinstance(value, dict) and isinstance(target.get(key), dict):
             _deep_update(target[key], value)
+        elif key in target and isinstance(value, dict) != isinstance(target[key], dict):
+            raise UserError(f"'{key}' is given both as a value and as a section of values")
         else:
             target[key] = value
 
@@ -146,22 +154,32 @@ def _add_run_parser(subparsers) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     _check_named_parts(args)
+    from testbed.model.kinematics import UnreachableTarget
     from testbed.runtime import config as config_module   # the simulation's imports, only for a run
     from testbed.runtime.metrics import write_metrics
     from testbed.runtime.runner import build_parts, run
 
     base = None if args.from_mcap is None else dataset_commands.config_from_mcap(args.from_mcap)
     cfg = config_module.load(args.config, _run_overrides(args), base=base)
-    if args.metrics is not None and args.metrics.is_dir():
-        raise UserError(f"--metrics {args.metrics} is a directory")
-    parts = build_parts(cfg)        # a plugin that cannot be found or built stops here, before any file
+    if args.metrics is not None:
+        prepare_output(args.metrics, "--metrics", args.force)
+    try:
+        parts = build_parts(cfg)    # a plugin that cannot be found or built stops here, before any file
+    except UnreachableTarget as error:
+        raise ConfigError(f"the robot cannot take its start pose with this config ({error})") from None
     recorder = dataset_commands.recorder_for(args, cfg)
     outcome = run(cfg, recorder, parts=parts)
-    if args.metrics is not None:
-        write_metrics(args.metrics, outcome.metrics)
     path = getattr(recorder, "path", None)
+    with held_interrupts():     # the run has stopped: a late Ctrl-C changes nothing of its files
+        if args.metrics is not None:
+            write_metrics(args.metrics, outcome.metrics)
     if not outcome.interrupted and path is not None:
         dataset_commands.after_run(args, path)
+    with held_interrupts():
+        return _report_run(cfg, outcome, path)
+
+
+def _report_run(cfg, outcome, path: Path | None) -> int:
     print(_result_line(cfg, outcome.metrics, path))
     if outcome.note:
         print(f"testbed: note: {outcome.note}", file=sys.stderr)
@@ -188,6 +206,7 @@ def _add_export_parser(subparsers) -> None:
     parser = subparsers.add_parser("export-urdf", help="write the robot's URDF")
     parser.add_argument("out", type=Path, help="output .urdf file")
     parser.add_argument("--config", type=Path, help="TOML file overriding testbed/defaults.toml")
+    dataset_commands.add_force_argument(parser)
     parser.set_defaults(handler=_cmd_export_urdf)
 
 
@@ -196,11 +215,8 @@ def _cmd_export_urdf(args: argparse.Namespace) -> int:
     from testbed.runtime import config as config_module
 
     cfg = config_module.load(args.config)
-    if args.out.is_dir():
-        raise UserError(f"{args.out} is a directory")
-    if not args.out.parent.exists():
-        raise UserError(f"folder {args.out.parent} does not exist")
-    args.out.write_text(build_urdf(cfg.robot), encoding="utf-8")
+    prepare_output(args.out, "export-urdf", args.force)
+    write_atomically(args.out, build_urdf(cfg.robot).encode("utf-8"))
     print(f"wrote {args.out}")
     return EXIT_OK
 
@@ -229,21 +245,33 @@ def _subcommand(argv: Sequence[str] | None) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # A run started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C
-    # and `kill -INT` must still stop it cleanly (the recorder closes its file on the way out).
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    # A run started in the background by a non-interactive shell inherits SIGINT ignored; Ctrl-C,
+    # `kill -INT`, SIGTERM and SIGHUP must still stop it cleanly (the recorder closes its file on the way out).
+    previous = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+    treat_stop_signals_as_interrupt()
+    try:
+        return _main(argv)
+    finally:
+        for signum, handler in previous.items():
+            # The command's work is done: a late Ctrl-C changes nothing. Called by a program: as it was.
+            signal.signal(signum, signal.SIG_IGN if interrupted_quietly.is_command(__name__ == "__main__")
+                          else handler if handler is not None else signal.SIG_DFL)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     try:
         argv = sys.argv[1:] if argv is None else argv
         args = build_parser(argv).parse_args(argv)
         return args.handler(args)
     except PluginError as error:
-        print(f"testbed: {error}", file=sys.stderr)
+        print(f"testbed: {one_line(error)}", file=sys.stderr)
         return EXIT_USAGE
     except ConfigError as error:
-        print(f"testbed: config error: {error}", file=sys.stderr)
+        print(f"testbed: config error: {one_line(error)}", file=sys.stderr)
         return EXIT_USAGE
     except UserError as error:
-        print(f"testbed: {error}" if not str(error).startswith("testbed") else str(error), file=sys.stderr)
+        text = one_line(error)
+        print(f"testbed: {text}" if not text.startswith("testbed") else text, file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("testbed: interrupted", file=sys.stderr)
@@ -252,6 +280,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The reader of our output went away (`testbed info run.mcap | head`): stop quietly.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_FAILED
+    except (RecursionError, MemoryError) as error:
+        print(f"testbed: input too large or too deeply nested ({type(error).__name__})", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as error:        # datasets.writer.WriterFailed included
+        print(f"testbed: {one_line(error)}", file=sys.stderr)
+        return EXIT_FAILED
+    except Exception as error:      # a failure during the work: one line, never a traceback
+        print(f"testbed: failed: {type(error).__name__}: {one_line(error)}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def one_line(error: BaseException | str) -> str:
+    """An error's text on one line: control characters (a newline in a name) escaped."""
+    text = str(error).strip() or type(error).__name__
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ from testbed.world.terrain import TERRAINS
 from testbed.runtime import config as config_module
 from testbed.runtime.config import Config
 from testbed.model.errors import UserError
+from testbed.runtime.outputs import prepare_output
 
 STAGES = ("physics", "contact", "sensors", "estimator", "controller", "recording", "metrics", "other")
 STAGE_NOTES = {
@@ -107,6 +108,7 @@ def add_subcommands(subparsers) -> None:
     parser.add_argument("--repeat", type=int, default=2, help="plain timed runs; the best counts (default 2)")
     parser.add_argument("--seed", type=int, help="seed of the run")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
+    parser.add_argument("--force", action="store_true", help="replace the --json file if it exists")
     parser.set_defaults(handler=cmd_profile)
 
 
@@ -117,7 +119,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
     if not 1 <= args.repeat <= 20:
         raise UserError(f"--repeat must lie in [1, 20], got {args.repeat}")
     if args.json is not None:
-        _check_output(args.json)
+        prepare_output(args.json, "--json", args.force)
     result = profile(config, args.repeat)
     print(result.table())
     if args.json is not None:
@@ -136,13 +138,6 @@ def profile_config(args: argparse.Namespace) -> Config:
            "duration": args.duration}
     run.update({name: getattr(args, name) for name in ("contact", "seed") if getattr(args, name) is not None})
     return config_module.load(overrides={"run": run})
-
-
-def _check_output(path: Path) -> None:
-    if path.is_dir():
-        raise UserError(f"--json {path} is a directory")
-    if not path.parent.is_dir():
-        raise UserError(f"--json {path}: folder {path.parent} does not exist")
 
 
 # --- measurements ----------------------------------------------------------------------------

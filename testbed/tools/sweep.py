@@ -11,6 +11,11 @@ index of each run's config and metrics, on a local process pool or a Dask distri
   worker. A worker that dies breaks the pool: its runs in flight go to a new pool, up to
   `max_attempts` attempts each.
 - Dask: the scheduler itself reschedules the runs of a lost worker; `retries` covers runs that raise.
+  A cluster without any worker for longer than the connect timeout, or whose scheduler is gone,
+  stops the sweep (`SweepStopped`) with every finished run kept in the index.
+- The cluster must be trusted: Dask unpickles what its workers return. Every returned row is still
+  checked (`checked_row`: plain values, the run's name, file and config hash) before it enters the
+  index.
 
 docs/sweep.md describes the command, the index columns and the cluster set-up.
 """
@@ -45,6 +50,7 @@ from testbed.runtime.presets import preset_overrides
 INDEX_FILE = "index.parquet"
 INDEX_CSV = "index.csv"
 MAX_ATTEMPTS = 3
+HEALTH_PERIOD = 0.5         # s between two checks of a Dask cluster while no run finishes
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 LEADING_COLUMNS = ("name", "file", "terrain", "seed", "estimator", "sensors", "gait", "contact", "duration_s",
                    "config_hash", "error", "worker", "finished_utc", "elapsed_s", "cpu_s")
@@ -109,6 +115,37 @@ def make_specs(points: Iterable[GridPoint], folder: Path, base: dict[str, Any] |
         specs.append(RunSpec(point.name, str(folder / f"{point.name}.mcap"), cfg.to_dict(), config_hash(cfg),
                              point.sensors, heightmap_store.attachments_of(cfg)))
     return specs
+
+
+class SweepStopped(Exception):
+    """The sweep cannot go on (the cluster lost its workers or its scheduler); finished runs are kept."""
+
+
+class InvalidRow(ValueError):
+    """A worker returned something that is not the index row of the run it was given."""
+
+
+ROW_VALUE_TYPES = (str, int, float, bool, type(None))
+MAX_ROW_COLUMNS = 200
+MAX_TEXT = 10_000
+
+
+def checked_row(row: Any, spec: RunSpec) -> dict[str, Any]:
+    """`row` if it is the index row of `spec`: a dict of at most MAX_ROW_COLUMNS plain values
+    (str, int, float, bool, None) under plain names, with the run's name, its file (a plain file
+    name in the sweep folder) and the config hash the run was given; else InvalidRow."""
+    if type(row) is not dict or len(row) > MAX_ROW_COLUMNS:
+        raise InvalidRow(f"not a table of at most {MAX_ROW_COLUMNS} columns ({type(row).__name__})")
+    for key, value in row.items():
+        if type(key) is not str or not key.isidentifier() or len(key) > 100:
+            raise InvalidRow(f"a column name that is not a plain name ({str(key)[:40]!r})")
+        if type(value) not in ROW_VALUE_TYPES or (type(value) is str and len(value) > MAX_TEXT):
+            raise InvalidRow(f"column {key} holds a {type(value).__name__}, not a plain value")
+    expected = {"name": spec.name, "file": Path(spec.path).name, "config_hash": spec.config_hash}
+    for key, value in expected.items():
+        if row.get(key) != value:
+            raise InvalidRow(f"{key} is {str(row.get(key))[:80]!r}, not {value!r}")
+    return row
 
 
 # --- one run, on a worker --------------------------------------------------------------------
@@ -297,10 +334,31 @@ class DaskPool:
 
     resubmits = False
 
-    def __init__(self, client, max_attempts: int = MAX_ATTEMPTS):
+    def __init__(self, client, max_attempts: int = MAX_ATTEMPTS, patience: float = 5.0):
+        """`patience`: seconds the cluster may be without any worker before the sweep stops."""
         self.client = client
+        self.patience = patience
         self.window = 1 << 30       # everything at once: the scheduler balances the workers
         self._executor = client.get_executor(retries=max_attempts - 1, pure=False)
+        self._without_workers_since: float | None = None
+        self._quiet = _QuietLogs()       # the client's own logs of a lost connection: the sweep says it in one line
+
+    def check(self) -> None:
+        """SweepStopped if the scheduler is gone, or the cluster has had no worker for `patience` seconds."""
+        address = getattr(self.client.scheduler, "address", "?")
+        if self.client.status != "running":        # "connecting": it lost its scheduler, and retries
+            raise SweepStopped(f"the Dask scheduler at {address} is gone (the client is {self.client.status})")
+        try:
+            workers = self.client.scheduler_info().get("workers", {})
+        except Exception as error:     # noqa: BLE001 - whatever the client raises, the scheduler is unreachable
+            raise SweepStopped(f"the Dask scheduler at {address} is gone ({type(error).__name__})") from None
+        now = time.monotonic()
+        if workers:
+            self._without_workers_since = None
+        elif self._without_workers_since is None:
+            self._without_workers_since = now
+        elif now - self._without_workers_since > self.patience:
+            raise SweepStopped(f"the Dask cluster at {address} has had no worker for {self.patience:g} s")
 
     def submit(self, spec: RunSpec) -> tuple[Future, int]:
         return self._executor.submit(execute, spec, key=f"sweep-{spec.name}-{uuid.uuid4().hex[:8]}"), 0
@@ -309,9 +367,32 @@ class DaskPool:
         """Nothing to do: the scheduler reschedules the runs of a lost worker."""
 
     def close(self, abort: bool) -> None:
-        if abort:
-            self._executor.shutdown(wait=False)
-        self.client.close()
+        try:
+            if abort:
+                self._executor.shutdown(wait=False)
+            self.client.close(timeout=self.patience)
+        except Exception:   # noqa: BLE001 - a client whose scheduler is gone closes as it can
+            pass
+        finally:
+            self._quiet.restore()
+
+
+class _QuietLogs:
+    """Dask's, tornado's and asyncio's loggers at CRITICAL until `restore`."""
+
+    NAMES = ("distributed", "tornado", "asyncio")
+
+    def __init__(self):
+        import logging
+        names = [name for name in logging.root.manager.loggerDict if name.split(".")[0] in self.NAMES]
+        self._loggers = [logging.getLogger(name) for name in {*self.NAMES, *names}]
+        self._levels = [logger.level for logger in self._loggers]
+        for logger in self._loggers:
+            logger.setLevel(logging.CRITICAL)
+
+    def restore(self) -> None:
+        for logger, level in zip(self._loggers, self._levels):
+            logger.setLevel(level)
 
 
 def connect(address: str, timeout: float):
@@ -364,7 +445,9 @@ class _Sweep:
                 self.attempts[spec.name] += 1
                 future, generation = self.backend.submit(spec)
                 self.running[future] = (spec, generation)
-            finished, _ = wait(list(self.running), return_when=FIRST_COMPLETED)
+            finished, _ = wait(list(self.running), timeout=HEALTH_PERIOD, return_when=FIRST_COMPLETED)
+            if not finished and hasattr(self.backend, "check"):
+                self.backend.check()
             for future in finished:
                 self.collect(future, *self.running.pop(future))
 
@@ -372,10 +455,19 @@ class _Sweep:
         try:
             row = future.result()
         except (BrokenProcessPool, CancelledError):
+            if hasattr(self.backend, "check"):
+                self.backend.check()        # a scheduler that is gone is said so, not taken for a lost worker
             self.backend.lost(generation)
             self.retry(spec, "its worker died", always=True)
+            return
         except Exception as error:
             self.retry(spec, f"{type(error).__name__}: {error}", always=False)
+            return
+        try:
+            row = checked_row(row, spec)
+        except InvalidRow as error:
+            self.summary.failed.append(spec.name)
+            self._say(f"sweep: {spec.name}: its worker returned an invalid index row ({error}); not kept")
         else:
             self.index.add(row)
             self.index.save()

@@ -26,6 +26,7 @@ from testbed.runtime.presets import DEFAULT_PRESET, preset_names
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 SCHEMES = ("tcp", "tls")
 DEFAULT_GAIT = "tripod"
+MAX_RUNS = 100_000          # runs of one sweep: its index and the specs stay small
 
 
 def add_subcommands(subparsers) -> None:
@@ -70,7 +71,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         if not locked:
             stack.enter_context(_locked(folder))
-        summary = _run(todo, index, backend, len(specs), args.max_attempts)
+        try:
+            summary = _run(todo, index, backend, len(specs), args.max_attempts)
+        except sweep.SweepStopped as error:
+            done = len([spec for spec in specs if spec.name in index.rows])
+            print(f"testbed: sweep stopped: {error}; {done} of {_runs(len(specs))} done, index "
+                  f"{folder / sweep.INDEX_FILE} saved; run the same command again to resume", file=sys.stderr)
+            return EXIT_FAILED
     _warn_unseen(folder, index, todo)
     return _report(summary, folder, time.perf_counter() - started)
 
@@ -78,26 +85,27 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 # --- input -----------------------------------------------------------------------------------
 
 def _check_numbers(args: argparse.Namespace) -> None:
-    if args.seeds < 1:
-        raise UserError(f"--seeds must be at least 1, got {args.seeds}")
-    if args.first_seed < 0:
-        raise UserError(f"--first-seed must be >= 0, got {args.first_seed}")
-    if args.max_attempts < 1:
-        raise UserError(f"--max-attempts must be at least 1, got {args.max_attempts}")
+    if not 1 <= args.seeds <= MAX_RUNS:
+        raise UserError(f"--seeds must be 1 ... {MAX_RUNS}, got {args.seeds}")
+    if not 0 <= args.first_seed < 2**62:
+        raise UserError(f"--first-seed must be 0 ... 2^62, got {args.first_seed}")
+    if not 1 <= args.max_attempts <= 100:
+        raise UserError(f"--max-attempts must be 1 ... 100, got {args.max_attempts}")
     if args.scheduler is not None:
         if args.workers is not None:
             raise UserError("--workers is for the local pool; with --scheduler the cluster's workers run the sweep")
         _check_address(args.scheduler)
-        if not args.connect_timeout > 0:
+        if not 0 < args.connect_timeout <= 3600:
             raise UserError(f"--connect-timeout must be positive, got {args.connect_timeout}")
-    elif args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
+    elif args.workers is not None and not 1 <= args.workers <= 1024:
+        raise UserError(f"--workers must be 1 ... 1024, got {args.workers}")
 
 
 def _check_address(address: str) -> None:
     scheme, separator, rest = address.partition("://")
     host, _, port = rest.rpartition(":")
-    if not separator or scheme not in SCHEMES or not host or not port.isdigit() or not 0 < int(port) < 65536:
+    if not separator or scheme not in SCHEMES or not host or not (port.isascii() and port.isdigit()) \
+            or not 0 < int(port) < 65536:
         raise UserError(f"--scheduler expects tcp://HOST:PORT, got '{address}'")
 
 
@@ -131,6 +139,9 @@ def _grid(args: argparse.Namespace) -> list[sweep.GridPoint]:
     estimators = _specs(args.estimators or defaults.estimator, "--estimators", resolve_estimator)
     presets = _names(args.sensors, "--sensors", "sensor preset", preset_names())
     seeds = range(args.first_seed, args.first_seed + args.seeds)
+    if len(terrains) * len(seeds) * len(estimators) * len(presets) > MAX_RUNS:
+        raise UserError(f"the grid has {len(terrains) * len(seeds) * len(estimators) * len(presets)} runs, "
+                        f"more than {MAX_RUNS}")
     return sweep.expand_grid(terrains, seeds, estimators, presets)
 
 
@@ -161,9 +172,9 @@ def _backend(args: argparse.Namespace, pending: int):
         return sweep.LocalPool(min(args.workers or os.cpu_count() or 1, pending))
     client = sweep.connect(args.scheduler, args.connect_timeout)
     if not client.scheduler_info().get("workers"):
-        print(f"testbed: warning: the scheduler at {args.scheduler} has no workers yet; the runs wait for them",
-              file=sys.stderr)
-    return sweep.DaskPool(client, args.max_attempts)
+        print(f"testbed: warning: the scheduler at {args.scheduler} has no workers yet; the runs wait "
+              f"{args.connect_timeout:g} s (--connect-timeout) for one", file=sys.stderr)
+    return sweep.DaskPool(client, args.max_attempts, patience=args.connect_timeout)
 
 
 @contextmanager

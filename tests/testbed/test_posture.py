@@ -256,7 +256,7 @@ def run_with_law(tmp_path, law, terrain="slope", duration=None):
     result = subprocess.run([sys.executable, "-m", "testbed.tools.cli", "run", "--terrain", terrain,
                              "--gait", "tripod", "--estimator", "ekf", "--controller", "posture",
                              "--duration", str(duration), "--set", f"posture.law={law}", "--metrics", str(metrics),
-                             "--out", str(tmp_path / "run.mcap")], capture_output=True, text=True, env=env)
+                             "--out", str(tmp_path / "run.mcap"), "--force"], capture_output=True, text=True, env=env)
     return (result.returncode, result.stderr, json.loads(metrics.read_text()) if metrics.exists() else None,
             json.loads(log.read_text()) if log.exists() else None)
 

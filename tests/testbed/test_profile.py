@@ -70,13 +70,16 @@ def test_table_is_printed_and_the_temporary_recording_removed(capsys, tmp_path, 
     (["--terrain", "moon"], "unknown terrain 'moon'"),
     (["--estimator", "oracle"], "unknown estimator"),
     (["--repeat", "0"], "--repeat must lie in"),
-    (["--json", "{missing}/p.json"], "does not exist"),
+    (["--json", "{missing}/p.json"], "exists (add --force"),
     (["--json", "{dir}"], "is a directory"),
 ])
 def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path, capsys):
-    args = [arg.format(missing=tmp_path / "no" / "such", dir=tmp_path) for arg in args]
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    (existing / "p.json").write_text("{}")          # an existing output is replaced only with --force
+    args = [arg.format(missing=existing, dir=tmp_path) for arg in args]
     assert main(["profile", "--duration", "0.05", *args]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
     assert message in captured.err and captured.err.count("\n") == 1
-    assert list(tmp_path.iterdir()) == []
+    assert list(tmp_path.iterdir()) == [existing] and (existing / "p.json").read_text() == "{}"
