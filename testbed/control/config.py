@@ -69,9 +69,13 @@ class PostureConfig:
     max_tilt_correction_deg: float
     max_height_correction: float
     walk_plane_time_constant: float
+    gait_level_time_constant: float
     search_speed: float
     search_depth: float
     touchdown_phase: float
+    max_swing_height: float
+    step_clearance: float
+    edge_margin: float
 
     def __post_init__(self) -> None:
         POSTURE_LAWS.check_spec(self.law)
@@ -80,6 +84,15 @@ class PostureConfig:
                  f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")
         require(0 < self.max_height_correction <= 0.08,
                  f"posture.max_height_correction must lie in (0, 0.08] m, got {self.max_height_correction}")
-        positive("posture timing", self.walk_plane_time_constant, self.search_speed)
+        positive("posture timing", self.walk_plane_time_constant, self.gait_level_time_constant, self.search_speed)
         require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
         require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")
+        non_negative("posture step adaptation", self.max_swing_height, self.step_clearance, self.edge_margin)
+        require(self.max_swing_height == 0 or self.max_swing_height >= self.step_clearance,
+                 "posture.max_swing_height must be 0 (swings never raised) or at least posture.step_clearance")
+
+    def climb_limits(self, swing_height: float) -> tuple[float, float]:
+        """(m up, m down): the highest step the feet can clear (the highest swing less the
+        clearance) and the deepest the search for ground reaches."""
+        highest = max(self.max_swing_height, swing_height)
+        return highest - self.step_clearance, self.search_depth

@@ -139,6 +139,13 @@ def correction_rotation(roll: float, pitch: float) -> np.ndarray:
     return rotation
 
 
+def gait_frame_tilt(roll: float, pitch: float, correction_roll: float, correction_pitch: float) -> tuple[float, float]:
+    """(roll, pitch) of the gait frame with respect to gravity, for the body's attitude (roll,
+    pitch) and the correction (the body's pose in the gait frame): R = R(body) R(correction)^T."""
+    frame = correction_rotation(roll, pitch) @ correction_rotation(correction_roll, correction_pitch).T
+    return math.atan2(frame[2, 1], frame[2, 2]), math.asin(min(1.0, max(-1.0, -frame[2, 0])))
+
+
 def body_frame_targets(feet: np.ndarray, correction: PostureCorrection) -> np.ndarray:
     """Gait-frame foot targets (n, 3) -> body-frame targets: rows R^T (p - d)."""
     return (feet - [0.0, 0.0, correction.height]) @ correction_rotation(correction.roll, correction.pitch)

@@ -73,6 +73,7 @@ class Config:
 
     def __post_init__(self) -> None:
         self._check_stride()
+        self._check_climb()
 
     def _check_stride(self) -> None:
         """A commanded speed whose stride does not fit the legs' workspace is a config error."""
@@ -86,6 +87,20 @@ class Config:
         require(stride <= self.gait.max_step_length + 1e-12,
                  f"speed {speed:g} m/s needs a {stride * 100:.1f} cm stride with the {self.run.gait} gait, "
                  f"more than gait.max_step_length {self.gait.max_step_length * 100:.1f} cm")
+
+    def _check_climb(self) -> None:
+        """A step or rough ground the posture controller's feet cannot clear or reach down to is
+        a config error."""
+        if self.run.controller != "posture" or self.run.terrain not in ("step", "rough"):
+            return
+        up, down = self.posture.climb_limits(self.gait.swing_height)
+        rise = self.terrain.step_height if self.run.terrain == "step" else 2.0 * self.terrain.rough_amplitude
+        what = f"terrain.step_height {rise:g} m" if self.run.terrain == "step" else \
+            f"terrain.rough_amplitude {self.terrain.rough_amplitude:g} m (blocks {rise:g} m apart)"
+        require(rise <= up + 1e-12, f"{what} is higher than the feet can clear: at most {up:g} m "
+                                    "(posture.max_swing_height less posture.step_clearance)")
+        require(-rise <= down + 1e-12 or self.run.terrain == "rough",
+                 f"{what} is deeper than the feet reach down: at most {down:g} m (posture.search_depth)")
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))
