@@ -124,15 +124,15 @@ def checked_contact(flags, forces, feet, free, history, faulty, disagreement, ag
     contact = np.zeros(6, dtype=np.bool_)
     marked = 0
     for leg in range(6):
-        stale = 0.0         # m the foot can have moved since its encoder reading
-        held = 0.0          # m the foot stands off the free-air model, beyond that
+        off = np.zeros(3)       # m the foot stands off the free-air model
+        stale = np.zeros(3)     # m it can have moved since its encoder reading
         for axis in range(3):
             lag = targets[leg, axis] - free[leg, axis]
             free[leg, axis] += min(max(servo.step * lag, -servo.max_step), servo.max_step)
-            stale = abs(servo.gain * lag) * servo.encoder_period
-            held = max(held, abs(measured[leg, axis] - free[leg, axis]) - stale)
-        held_up = measured[leg, 2] - free[leg, 2] - stale > limits.block_margin
-        blocked = held_up or held > limits.obstacle_margin
+            off[axis] = measured[leg, axis] - free[leg, axis]
+            stale[axis] = abs(servo.gain * lag) * servo.encoder_period
+        held_up = off[2] - stale[2] > limits.block_margin
+        blocked = held_up or (np.abs(off) - stale).max() > limits.obstacle_margin
         raised = gait_frame[leg, 2] - feet.liftoff[leg, 2]
         in_air = swinging[leg] and min(heights[leg], raised) > limits.air_height and not blocked
         dropped = not np.isfinite(forces[leg])

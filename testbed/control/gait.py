@@ -216,6 +216,13 @@ class GaitGenerator:
     def swing_progress(self, t: float) -> np.ndarray:
         return _progress(self.phase(t), self.parameters, np.empty(6))
 
+    def landing(self, t: float) -> np.ndarray:
+        """(6,) bool: the swings past their rising half at gait time t, or past their scheduled
+        end (a touch now lands the foot)."""
+        phase = self.phase(t)
+        progress = _progress(phase, self.parameters, np.empty(6))
+        return self.state.swinging & ((progress >= RISING_HALF) | (phase < self.duty))
+
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
         self.state_record["stopping"] = True

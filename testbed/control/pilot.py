@@ -15,7 +15,7 @@ from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from estimators.base import Estimate
 from testbed.control.contact_check import ContactCheck
 from testbed.control.controller import Controller
-from testbed.control.gait import GAITS, RISING_HALF, GaitGenerator, TerrainAdaptation, Twist
+from testbed.control.gait import GAITS, GaitGenerator, TerrainAdaptation, Twist
 from testbed.model.kinematics import (LegGeometry, elbow_sign, foot_positions, joint_targets_or_last,
                                      solve_legs_or_last)
 from testbed.control.navigation import TargetWalker
@@ -113,12 +113,9 @@ class Pilot(Controller):
         gait, gait_time = self.gait, t - startup_time
         if walking:
             measured = self._measured_feet()
-            swinging = gait.state.swinging
-            clock = gait.clock(gait_time)
-            landing = swinging & ((gait.swing_progress(clock) >= RISING_HALF) | ~gait.scheduled_swing(clock))
-            self.foot_contact = self.contact_check.update(self.sensor_contact, self.foot_forces, self.encoder_feet,
-                                                          measured, self.body_targets, swinging, landing,
-                                                          gait.state.liftoff)
+            self.foot_contact = self.contact_check.update(
+                self.sensor_contact, self.foot_forces, self.encoder_feet, measured, self.body_targets,
+                gait.state.swinging, gait.landing(gait.clock(gait_time)), gait.state.liftoff)
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
@@ -147,9 +144,8 @@ class Pilot(Controller):
 
         Nothing else ties the gait frame to gravity: a foot lands where the encoders put it
         through the correction, so the stance plane takes whatever tilt the correction has, and
-        any bias in the landings (the legs' sag, the servos' lag) turns the frame a little every
-        step while the law turns the body back: on flat ground the correction and the frame's
-        tilt grew together until the correction saturated."""
+        a bias in the landings (the servos' lag, the legs' sag) would turn the frame a little
+        every step, and the correction with it, without bound (docs/control.md)."""
         if self.gait_level_rate <= 0.0:
             return
         frame_roll, frame_pitch = gait_frame_tilt(roll, pitch, self.correction.roll, self.correction.pitch)
