@@ -44,60 +44,58 @@ class ContactLimits(NamedTuple):
     recovery_time: float = 0.1      # s of each kind of agreement that clears the mark
 
 
+# The check's constants and state, each one record (a one-element structured array) that the
+# compiled check reads and updates by field name (flags stored as uint8).
+CHECK_PARAMETERS = np.dtype([
+    ("dt", "f8"),                       # s per tick
+    ("servo_step", "f8"),               # min(1, servo_gain dt): share of the distance to the target per tick
+    ("servo_gain", "f8"),               # 1/s
+    ("max_step", "f8"),                 # m per tick at the servos' no-load speed
+    ("encoder_period", "f8"),           # s between encoder readings: how old a reading can be
+    *[(name, "f8") for name in ContactLimits._fields],
+])
+CHECK_STATE = np.dtype([
+    ("free", "f8", (6, 3)),             # the feet in free air, body frame (the servo model)
+    ("faulty", "u1", 6),                # sensors judged to lie
+    ("disagreement", "f8", 6),          # s the flag has disagreed with the kinematics (while trusted)
+    ("agreement", "f8", (6, 2)),        # s it read no ground in the air, and ground in stance (while faulty)
+    ("was_swinging", "u1", 6),          # the leg swung at the last tick
+    ("released", "u1", 6),              # its sensor has read no ground since the swing began
+    ("marked", "i8"),                   # sensors marked faulty so far
+])
+
+
 class ContactCheck:
     """Per tick: `update(...)` returns the contact flags to use (6,) bool; `faulty` (6,) bool
     marks the sensors judged to lie; `faults_detected` counts the marks made."""
 
     def __init__(self, servo_gain: float, dt: float, encoder_period: float, foot_speed: float,
                  limits: ContactLimits = ContactLimits()):
-        self.servo = ServoModel(min(1.0, servo_gain * dt), servo_gain, encoder_period, foot_speed * dt)
-        self.dt, self.limits = dt, limits
-        self.faulty = np.zeros(6, dtype=bool)
-        self.disagreement = np.zeros(6)     # s the flag has disagreed with the kinematics (while not faulty)
-        self.agreement = np.zeros((6, 2))   # s it has read no ground in the air, and ground in stance (while faulty)
-        self.faults_detected = 0
-        self.free = None                    # (6, 3) the feet in free air, body frame (the servo model)
-        self.history = SwingHistory(np.zeros(6, dtype=np.bool_), np.ones(6, dtype=np.bool_))
+        self.parameters = np.zeros(1, CHECK_PARAMETERS)
+        for field, value in (("dt", dt), ("servo_step", min(1.0, servo_gain * dt)), ("servo_gain", servo_gain),
+                             ("max_step", foot_speed * dt), ("encoder_period", encoder_period),
+                             *limits._asdict().items()):
+            self.parameters[field] = value
+        self.state = np.zeros(1, CHECK_STATE)
+        self.state["released"] = 1
+        self.faulty = self.state["faulty"][0].view(bool)
+        self.disagreement = self.state["disagreement"][0]
+        self._started = False
+
+    @property
+    def faults_detected(self) -> int:
+        return int(self.state["marked"][0])
 
     def update(self, flags: np.ndarray, forces: np.ndarray, measured: np.ndarray, gait_frame: np.ndarray,
-               targets: np.ndarray, swinging: np.ndarray, landing: np.ndarray, liftoff: np.ndarray) -> np.ndarray:
+               targets: np.ndarray, gait_state: np.ndarray) -> np.ndarray:
         """`flags`, `forces`: the latest foot sample; `measured`: the feet where the encoders put
         them, body frame; `gait_frame`: the same in the gait frame; `targets`: the body-frame
-        targets given to the servos at the last tick; `swinging`: the gait's swing legs;
-        `landing`: the swings past their rising half; `liftoff`: where each swing began (gait frame)."""
-        if self.free is None:
-            self.free = np.array(measured, dtype=float)
-        feet = FeetNow(measured, gait_frame, targets, liftoff, swinging, landing)
-        contact, marked = checked_contact(flags, forces, feet, self.free, self.history, self.faulty,
-                                          self.disagreement, self.agreement, self.servo, self.dt, self.limits)
-        self.faults_detected += marked
-        return contact
-
-
-class FeetNow(NamedTuple):
-    """The legs as the pilot knows them at one tick."""
-    measured: np.ndarray            # (6, 3) where the encoders put the feet, body frame
-    gait_frame: np.ndarray          # (6, 3) the same, gait frame
-    targets: np.ndarray             # (6, 3) the servos' targets of the last tick, body frame
-    liftoff: np.ndarray             # (6, 3) where each swing began, gait frame
-    swinging: np.ndarray            # (6,) bool
-    landing: np.ndarray             # (6,) bool: swinging, past the rising half (a touch lands the foot)
-
-
-class SwingHistory(NamedTuple):
-    """Per leg, updated in place: swinging at the last tick; its sensor has read no ground since
-    the swing began."""
-    was_swinging: np.ndarray
-    released: np.ndarray
-
-
-class ServoModel(NamedTuple):
-    """The servos as the check models them: a foot moves towards its target at `gain` times the
-    distance (first order), a share `step` of the distance per tick."""
-    step: float                     # min(1, gain dt)
-    gain: float                     # 1/s
-    encoder_period: float           # s between encoder readings: how stale a reading can be
-    max_step: float                 # m per tick at the servos' no-load speed
+        targets given to the servos at the last tick; `gait_state`: the gait's GAIT_STATE record
+        (which legs swing, which swings land, where they began)."""
+        if not self._started:
+            self.state["free"] = measured
+            self._started = True
+        return checked_contact(flags, forces, measured, gait_frame, targets, gait_state, self.state, self.parameters)
 
 
 @njit(cache=True)
@@ -114,55 +112,55 @@ def stance_plane_heights(gait_frame, stance):
 
 
 @njit(cache=True)
-def checked_contact(flags, forces, feet, free, history, faulty, disagreement, agreement, servo, dt, limits):
-    """ContactCheck.update's work: the contact flags to use, and how many sensors it marked
-    faulty this tick. Moves the servo model `free` one tick towards `targets` and updates
-    `faulty`, `disagreement` and `agreement` in place."""
-    measured, gait_frame, targets, swinging = feet.measured, feet.gait_frame, feet.targets, feet.swinging
-    was_swinging, released = history.was_swinging, history.released
+def checked_contact(flags, forces, measured, gait_frame, targets, gait_state, state, parameters):
+    """ContactCheck.update's work: the contact flags to use. Moves the servo model one tick
+    towards `targets` and updates the CHECK_STATE record `state` in place."""
+    g, s, p = gait_state[0], state[0], parameters[0]
+    swinging, landing = g.swinging != 0, g.landing != 0
+    free, faulty, disagreement, agreement = s.free, s.faulty, s.disagreement, s.agreement
     heights = stance_plane_heights(gait_frame, ~swinging)
     contact = np.zeros(6, dtype=np.bool_)
-    marked = 0
     for leg in range(6):
         off = np.zeros(3)       # m the foot stands off the free-air model
         stale = np.zeros(3)     # m it can have moved since its encoder reading
         for axis in range(3):
             lag = targets[leg, axis] - free[leg, axis]
-            free[leg, axis] += min(max(servo.step * lag, -servo.max_step), servo.max_step)
+            free[leg, axis] += min(max(p.servo_step * lag, -p.max_step), p.max_step)
             off[axis] = measured[leg, axis] - free[leg, axis]
-            stale[axis] = abs(servo.gain * lag) * servo.encoder_period
-        held_up = off[2] - stale[2] > limits.block_margin
-        blocked = held_up or (np.abs(off) - stale).max() > limits.obstacle_margin
-        raised = gait_frame[leg, 2] - feet.liftoff[leg, 2]
-        in_air = swinging[leg] and min(heights[leg], raised) > limits.air_height and not blocked
+            stale[axis] = abs(p.servo_gain * lag) * p.encoder_period
+        held_up = off[2] - stale[2] > p.block_margin
+        blocked = held_up or (np.abs(off) - stale).max() > p.obstacle_margin
+        raised = gait_frame[leg, 2] - g.liftoff[leg, 2]
+        in_air = swinging[leg] and min(heights[leg], raised) > p.air_height and not blocked
         dropped = not np.isfinite(forces[leg])
         # A working sensor reads no ground at some point of every swing; one that touches a
         # riser or a step's top reads ground in the air, rightly, but only after that.
-        if swinging[leg] and not was_swinging[leg]:
-            released[leg] = False
-        released[leg] = released[leg] or not flags[leg]
-        was_swinging[leg] = swinging[leg]
-        disagrees = dropped or (flags[leg] and in_air and not released[leg]) or (held_up and not flags[leg])
-        if not faulty[leg]:
-            disagreement[leg] = disagreement[leg] + dt if disagrees else \
-                max(0.0, disagreement[leg] - limits.forgetting * dt)
-            if disagreement[leg] >= limits.fault_time or dropped:
-                faulty[leg] = True
+        if swinging[leg] and s.was_swinging[leg] == 0:
+            s.released[leg] = 0
+        if not flags[leg]:
+            s.released[leg] = 1
+        s.was_swinging[leg] = 1 if swinging[leg] else 0
+        disagrees = dropped or (flags[leg] and in_air and s.released[leg] == 0) or (held_up and not flags[leg])
+        if faulty[leg] == 0:
+            disagreement[leg] = disagreement[leg] + p.dt if disagrees else \
+                max(0.0, disagreement[leg] - p.forgetting * p.dt)
+            if disagreement[leg] >= p.fault_time or dropped:
+                faulty[leg] = 1
                 agreement[leg, 0] = agreement[leg, 1] = 0.0
-                marked += 1
-        if not faulty[leg]:
+                s.marked += 1
+        if faulty[leg] == 0:
             contact[leg] = (flags[leg] and not in_air) or held_up
             continue
         # the foot is held up, stands, or has come down to the other feet's plane
-        contact[leg] = held_up or not swinging[leg] or (feet.landing[leg] and heights[leg] <= 0.0)
+        contact[leg] = held_up or not swinging[leg] or (landing[leg] and heights[leg] <= 0.0)
         # Trusted again only after it has read both: no ground in the air, ground in stance.
         if disagrees:
             agreement[leg, 0] = agreement[leg, 1] = 0.0
         elif in_air and not flags[leg]:
-            agreement[leg, 0] += dt
+            agreement[leg, 0] += p.dt
         elif not swinging[leg] and flags[leg]:
-            agreement[leg, 1] += dt
-        if min(agreement[leg, 0], agreement[leg, 1]) >= limits.recovery_time:
-            faulty[leg] = False
+            agreement[leg, 1] += p.dt
+        if min(agreement[leg, 0], agreement[leg, 1]) >= p.recovery_time:
+            faulty[leg] = 0
             disagreement[leg] = 0.0
-    return contact, marked
+    return contact

@@ -150,6 +150,7 @@ GAIT_STATE = np.dtype([
     ("swinging", "u1", 6),              # in the air
     ("scheduled", "u1", 6),             # the schedule's swings at the last step
     ("searching", "u1", 6),             # reaching down for ground the clock waits for
+    ("landing", "u1", 6),               # swinging past the rising half or the scheduled end: a touch lands
     ("stopping", "u1"),                 # no new swings
 ])
 
@@ -216,12 +217,6 @@ class GaitGenerator:
     def swing_progress(self, t: float) -> np.ndarray:
         return _progress(self.phase(t), self.parameters, np.empty(6))
 
-    def landing(self, t: float) -> np.ndarray:
-        """(6,) bool: the swings past their rising half at gait time t, or past their scheduled
-        end (a touch now lands the foot)."""
-        phase = self.phase(t)
-        progress = _progress(phase, self.parameters, np.empty(6))
-        return self.state.swinging & ((progress >= RISING_HALF) | (phase < self.duty))
 
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
@@ -230,7 +225,7 @@ class GaitGenerator:
     def rotate(self, rotation: np.ndarray) -> None:
         """Turn the gait frame's contents (targets, swing starts, search floors) by `rotation`
         (3, 3) about the frame's origin: the frame itself turns by its transpose."""
-        _rotate_frame(self.state_record, np.ascontiguousarray(rotation, dtype=float))
+        _rotate_frame(self.state_record, rotation)
 
     def clock(self, t: float) -> float:
         """Gait time at run time t: the time spent waiting for the ground does not count."""
@@ -398,6 +393,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         _remember_landings(s, touched)
     searching = swinging & ~now
     _store_flags(s.searching, searching)
+    _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
     if searching.any():
         _search(feet, swinging, searching, search_floor, p.search_speed * dt)
         _store_flags(s.swinging, swinging)

@@ -21,8 +21,8 @@ from testbed.model.kinematics import (LegGeometry, elbow_sign, foot_positions, j
 from testbed.control.navigation import TargetWalker
 from testbed.control.odometry import GyroHeading, LegOdometry
 from testbed.control.posture import (POSTURE_LAWS, PostureCorrection, PostureMeasurement, body_frame_targets,
-                                     checked_correction, correction_rotation, estimated_height, gait_frame_tilt,
-                                     kinematic_height, tilted_targets, untilted_positions)
+                                     checked_correction, estimated_height, kinematic_height, levelling_rotation,
+                                     tilted_targets, untilted_positions)
 from testbed.control.command import Command
 from testbed.model.errors import PluginFailure
 from testbed.control.startup import CalibrationPoses
@@ -113,9 +113,8 @@ class Pilot(Controller):
         gait, gait_time = self.gait, t - startup_time
         if walking:
             measured = self._measured_feet()
-            self.foot_contact = self.contact_check.update(
-                self.sensor_contact, self.foot_forces, self.encoder_feet, measured, self.body_targets,
-                gait.state.swinging, gait.landing(gait.clock(gait_time)), gait.state.liftoff)
+            self.foot_contact = self.contact_check.update(self.sensor_contact, self.foot_forces, self.encoder_feet,
+                                                          measured, self.body_targets, gait.state_record)
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
@@ -148,9 +147,8 @@ class Pilot(Controller):
         every step, and the correction with it, without bound (docs/control.md)."""
         if self.gait_level_rate <= 0.0:
             return
-        frame_roll, frame_pitch = gait_frame_tilt(roll, pitch, self.correction.roll, self.correction.pitch)
-        rate = self.gait_level_rate
-        self.gait.rotate(correction_rotation(rate * frame_roll, rate * frame_pitch))
+        correction = self.correction
+        self.gait.rotate(levelling_rotation(roll, pitch, correction.roll, correction.pitch, self.gait_level_rate))
 
     def _posture_update(self, t: float, measurement: PostureMeasurement) -> PostureCorrection:
         """The law's correction; whatever it raises or returns malformed is a one-line PluginFailure."""

@@ -94,13 +94,19 @@ class Config:
         if self.run.controller != "posture" or self.run.terrain not in ("step", "rough"):
             return
         up, down = self.posture.climb_limits(self.gait.swing_height)
-        rise = self.terrain.step_height if self.run.terrain == "step" else 2.0 * self.terrain.rough_amplitude
-        what = f"terrain.step_height {rise:g} m" if self.run.terrain == "step" else \
-            f"terrain.rough_amplitude {self.terrain.rough_amplitude:g} m (blocks {rise:g} m apart)"
-        require(rise <= up + 1e-12, f"{what} is higher than the feet can clear: at most {up:g} m "
-                                    "(posture.max_swing_height less posture.step_clearance)")
-        require(-rise <= down + 1e-12 or self.run.terrain == "rough",
-                 f"{what} is deeper than the feet reach down: at most {down:g} m (posture.search_depth)")
+        if self.run.terrain == "step":
+            height = self.terrain.step_height
+            require(height <= up + 1e-12, f"terrain.step_height {height:g} m is higher than the feet can clear: "
+                                          f"at most {up:g} m (posture.max_swing_height less posture.step_clearance)")
+            require(-height <= down + 1e-12, f"terrain.step_height {height:g} m is deeper than the feet reach "
+                                             f"down: at most {down:g} m (posture.search_depth)")
+            return
+        # From the lowest block to the highest, or down from the mean level to the lowest.
+        amplitude = self.terrain.rough_amplitude
+        highest = max(self.posture.max_swing_height, self.gait.swing_height)
+        require(2.0 * amplitude <= highest + 1e-12 and amplitude <= down + 1e-12,
+                 f"terrain.rough_amplitude {amplitude:g} m is more than the feet can clear or reach down: at most "
+                 f"{min(highest / 2.0, down):g} m (half posture.max_swing_height, posture.search_depth)")
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from testbed.control.contact_check import ContactCheck, ContactLimits
+from testbed.control.gait import GAIT_STATE
 from testbed.runtime import config
 from testbed.runtime.runner import run
 
@@ -20,11 +21,13 @@ def check():
 
 
 def tick(contact_check, feet, flags, swinging, landing, targets=None, forces=None):
-    """One tick with the feet standing still at `feet` (encoders = targets unless given)."""
+    """One tick with the feet standing still at `feet` (encoders = targets unless given); the
+    swings (`swinging`, `landing`) began at the neutral stance."""
     targets = feet if targets is None else targets
     forces = np.where(flags, 10.0, 0.0) if forces is None else forces
-    return contact_check.update(np.asarray(flags), forces, feet, feet, targets, np.asarray(swinging),
-                                np.asarray(landing), NEUTRAL)
+    gait = np.zeros(1, GAIT_STATE)
+    gait["swinging"], gait["landing"], gait["liftoff"] = swinging, landing, NEUTRAL
+    return contact_check.update(np.asarray(flags), forces, feet, feet, targets, gait)
 
 
 def test_ground_reported_under_a_foot_high_in_the_air_is_not_believed_and_marks_the_sensor():

@@ -336,8 +336,10 @@ def test_a_step_the_feet_cannot_clear_or_reach_down_to_is_refused():
         config.load(None, {**base, "terrain": {"step_height": 0.065}})
     with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.06 m"):
         config.load(None, {**base, "terrain": {"step_height": -0.07}})
-    with pytest.raises(ConfigError, match="rough_amplitude 0.04 m"):
-        config.load(None, {"run": {**base["run"], "terrain": "rough"}, "terrain": {"rough_amplitude": 0.04}})
+    rough = {"run": {**base["run"], "terrain": "rough"}}
+    config.load(None, {**rough, "terrain": {"rough_amplitude": 0.035}})
+    with pytest.raises(ConfigError, match="rough_amplitude 0.045 m is more than the feet can clear"):
+        config.load(None, {**rough, "terrain": {"rough_amplitude": 0.045}})
 
 
 WALK = {"run": {"gait": "tripod", "estimator": "ekf", "controller": "posture"}}
