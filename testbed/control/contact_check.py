@@ -8,9 +8,8 @@ joint encoders and the targets the pilot gave the servos, can contradict a flag:
 
 - **held up**: the foot stands higher than where the servos would have taken it in free air (a
   first-order model of the servos, `servo_gain`, speed-limited, driven by the targets) by more
-  than `block_margin` beyond what it moves in its reading's age plus one servo time constant
-  (the joint servos are not quite the model's first-order foot): something under the foot
-  carries it; **stopped** when it stands off that model by more than `obstacle_margin`
+  than `block_margin` beyond what it can have moved since its encoder reading: something under
+  the foot carries it; **stopped** when it stands off that model by more than `obstacle_margin`
   in any direction (a riser in its way; the model is only first order, hence the wider margin);
 - **in the air**: a swinging foot neither held up nor stopped that stands higher than
   `air_height` above both the plane of the stance feet (gait frame, encoders) and the point
@@ -52,8 +51,7 @@ CHECK_PARAMETERS = np.dtype([
     ("servo_step", "f8"),               # min(1, servo_gain dt): share of the distance to the target per tick
     ("servo_gain", "f8"),               # 1/s
     ("max_step", "f8"),                 # m per tick at the servos' no-load speed
-    ("reading_age", "f8"),              # s the model may run ahead of a reading: the encoder period
-                                        # plus one servo time constant (the model's error)
+    ("encoder_period", "f8"),           # s between encoder readings: how old a reading can be
     *[(name, "f8") for name in ContactLimits._fields],
 ])
 CHECK_STATE = np.dtype([
@@ -75,7 +73,7 @@ class ContactCheck:
                  limits: ContactLimits = ContactLimits()):
         self.parameters = np.zeros(1, CHECK_PARAMETERS)
         for field, value in (("dt", dt), ("servo_step", min(1.0, servo_gain * dt)), ("servo_gain", servo_gain),
-                             ("max_step", foot_speed * dt), ("reading_age", encoder_period + 1.0 / servo_gain),
+                             ("max_step", foot_speed * dt), ("encoder_period", encoder_period),
                              *limits._asdict().items()):
             self.parameters[field] = value
         self.state = np.zeros(1, CHECK_STATE)
@@ -129,7 +127,7 @@ def checked_contact(flags, forces, measured, gait_frame, targets, gait_state, st
             lag = targets[leg, axis] - free[leg, axis]
             free[leg, axis] += min(max(p.servo_step * lag, -p.max_step), p.max_step)
             off[axis] = measured[leg, axis] - free[leg, axis]
-            stale[axis] = abs(p.servo_gain * lag) * p.reading_age
+            stale[axis] = abs(p.servo_gain * lag) * p.encoder_period
         held_up = off[2] - stale[2] > p.block_margin
         blocked = held_up or (np.abs(off) - stale).max() > p.obstacle_margin
         raised = gait_frame[leg, 2] - g.liftoff[leg, 2]
