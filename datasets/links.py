@@ -43,7 +43,9 @@ class LinkTree:
         joints = {element.get("name"): _joint(element) for element in robot.iter("joint")
                   if element.get("type") in ("revolute", "continuous")}
         children = {joint.child for joint in joints.values()}
-        root = next(link.get("name") for link in robot.iter("link") if link.get("name") not in children)
+        root = next((link.get("name") for link in robot.iter("link") if link.get("name") not in children), None)
+        if root is None:
+            raise ValueError("the URDF has no root link")
         names = list(order) if order is not None else joint_names()
         missing = [name for name in names if name not in joints]
         if missing:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from testbed.control.posture import POSTURE_LAWS
 from testbed.control.startup import CalibrationPoses
@@ -73,9 +74,13 @@ class PostureConfig:
     max_tilt_correction_deg: float
     max_height_correction: float
     walk_plane_time_constant: float
+    gait_level_time_constant: float
     search_speed: float
     search_depth: float
     touchdown_phase: float
+    max_swing_height: float
+    step_clearance: float
+    edge_margin: float
 
     def __post_init__(self) -> None:
         POSTURE_LAWS.check_spec(self.law)
@@ -84,6 +89,22 @@ class PostureConfig:
                  f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")
         require(0 < self.max_height_correction <= 0.08,
                  f"posture.max_height_correction must lie in (0, 0.08] m, got {self.max_height_correction}")
-        positive("posture timing", self.walk_plane_time_constant, self.search_speed)
+        positive("posture timing", self.walk_plane_time_constant, self.gait_level_time_constant, self.search_speed)
         require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
         require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")
+        non_negative("posture step adaptation", self.max_swing_height, self.step_clearance, self.edge_margin)
+        require(self.max_swing_height == 0 or self.max_swing_height >= self.step_clearance,
+                 "posture.max_swing_height must be 0 (swings never raised) or at least posture.step_clearance")
+
+    def climb_limits(self, swing_height: float) -> ClimbLimits:
+        """What the pilot's feet can clear and reach: the highest step (the highest swing less the
+        clearance), the deepest (the search for ground), and the largest rough-ground amplitude
+        (from the lowest block to the highest within the highest swing, and down within the search)."""
+        highest = max(self.max_swing_height, swing_height)
+        return ClimbLimits(highest - self.step_clearance, self.search_depth, min(highest / 2.0, self.search_depth))
+
+
+class ClimbLimits(NamedTuple):
+    up: float                  # m, the highest step up
+    down: float                # m, the deepest step down
+    rough_amplitude: float     # m, the largest +- amplitude of rough ground

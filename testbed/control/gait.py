@@ -72,6 +72,8 @@ STANCE_SETTLE_TIME = 0.05
 # The elliptic swing rises over the first half of its progress: a touch then is an obstacle met on
 # the way up (elevator reflex), not the ground to land on.
 RISING_HALF = 0.5
+# m: a swing foot this far above its start that touches something on its way up has met a riser
+RISER_HEIGHT = 0.01
 
 
 class Twist(NamedTuple):
@@ -98,6 +100,9 @@ class TerrainAdaptation:
     search_depth: float         # m below the expected ground, the leg's workspace
     touchdown_phase: float      # contact after this fraction of the swing lands the foot
     plane_time_constant: float  # s, the gait frame's height follows the stance feet's plane; inf: it stays
+    clearance: float = 0.0      # m, a swing clears known higher footholds ahead and a riser by this
+    max_swing_height: float = 0.0   # m above the swing's start; 0: the swing height, never raised
+    edge_margin: float = 0.0    # m, a foot blocked by a riser lands at least this far beyond it
 
     @property
     def follows_terrain(self) -> bool:
@@ -109,6 +114,10 @@ class TerrainAdaptation:
         ellipse, or after reaching down at most `search_depth` for the ground; touches earlier in
         the swing are ignored and the gait frame stays level (this gait knows no terrain)."""
         return TerrainAdaptation(search_speed, search_depth, 1.0, math.inf)
+
+    @property
+    def raises_swings(self) -> bool:
+        return self.max_swing_height > 0.0
 
 
 # The gait's constants and its state, each one record (a one-element structured array) that the
@@ -125,6 +134,9 @@ GAIT_PARAMETERS = np.dtype([
     ("search_depth", "f8"),
     ("touchdown_phase", "f8"),
     ("plane_time_constant", "f8"),
+    ("clearance", "f8"),
+    ("max_swing_height", "f8"),
+    ("edge_margin", "f8"),
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -132,9 +144,13 @@ GAIT_STATE = np.dtype([
     ("feet", "f8", (6, 3)),             # current foot targets, body frame
     ("liftoff", "f8", (6, 3)),          # where each swing began
     ("search_floor", "f8", 6),          # m, lowest a swing foot reaches down for ground
+    ("lift", "f8", 6),                  # m, height of each leg's current swing
+    ("raised", "f8", 6),                # m, extra height for a leg's next swing after a blocked one
+    ("edge", "f8", (6, 2)),             # (x, z) of a riser a swing foot met, gait frame; x NaN: none
     ("swinging", "u1", 6),              # in the air
     ("scheduled", "u1", 6),             # the schedule's swings at the last step
     ("searching", "u1", 6),             # reaching down for ground the clock waits for
+    ("landing", "u1", 6),               # swinging past the rising half or the scheduled end: a touch lands
     ("stopping", "u1"),                 # no new swings
 ])
 
@@ -157,16 +173,20 @@ class GaitGenerator:
         self.pattern = pattern = GAITS.resolve(name)
         self.duty, self.swing_start = pattern.duty, np.asarray(pattern.swing_start, dtype=float)
         search = adaptation or TerrainAdaptation(0.0, 0.0, 1.0, math.inf)
+        self.raises_swings = search.raises_swings
         self.parameters = np.zeros(1, GAIT_PARAMETERS)
         for field, value in (("period", period), ("duty", self.duty), ("lead", lead),
                              ("stance_time", self.stance_time), ("swing_height", swing_height),
                              ("neutral_height", self.neutral_height), ("search_speed", search.search_speed),
                              ("search_depth", search.search_depth), ("touchdown_phase", search.touchdown_phase),
                              ("plane_time_constant", search.plane_time_constant),
+                             ("clearance", search.clearance), ("max_swing_height", search.max_swing_height),
+                             ("edge_margin", search.edge_margin),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
         record["feet"], record["liftoff"], record["search_floor"] = self.neutral, self.neutral, -np.inf
+        record["lift"], record["edge"] = swing_height, np.nan
         self.state = GaitState(record["feet"][0], record["swinging"][0].view(bool), record["liftoff"][0])
         self.scheduled = record["scheduled"][0].view(bool)
         self.search_floor = record["search_floor"][0]
@@ -197,9 +217,15 @@ class GaitGenerator:
     def swing_progress(self, t: float) -> np.ndarray:
         return _progress(self.phase(t), self.parameters, np.empty(6))
 
+
     def stop(self) -> None:
         """Finish the swings under way, then keep every foot down."""
         self.state_record["stopping"] = True
+
+    def rotate(self, rotation: np.ndarray) -> None:
+        """Turn the gait frame's contents (targets, swing starts, search floors) by `rotation`
+        (3, 3) about the frame's origin: the frame itself turns by its transpose."""
+        _rotate_frame(self.state_record, rotation)
 
     def clock(self, t: float) -> float:
         """Gait time at run time t: the time spent waiting for the ground does not count."""
@@ -295,13 +321,14 @@ def _swing_blend(progress):
 
 
 @njit(cache=True)
-def _move_swing(feet, liftoff, progress, swing, touchdown, swing_height):
+def _move_swing(feet, liftoff, progress, swing, touchdown, lift):
+    """The swing feet along their ellipses; `lift` (6,): each swing's height."""
     for leg in range(6):
         if swing[leg]:
             blend = _swing_blend(progress[leg])
             for axis in range(3):
                 feet[leg, axis] = liftoff[leg, axis] + (touchdown[leg, axis] - liftoff[leg, axis]) * blend
-            feet[leg, 2] += swing_height * math.sin(math.pi * progress[leg])
+            feet[leg, 2] += lift[leg] * math.sin(math.pi * progress[leg])
 
 
 @njit(cache=True)
@@ -327,7 +354,7 @@ def _blind_step(t, dt, twist, walking, parameters, state, phase):
             feet[leg] = touchdown[leg]
     _move_stance(feet, ~swing, twist, dt)
     if swing.any():
-        _move_swing(feet, liftoff, _progress(phase, parameters, np.empty(6)), swing, touchdown, p.swing_height)
+        _move_swing(feet, liftoff, _progress(phase, parameters, np.empty(6)), swing, touchdown, s.lift)
     _store_flags(s.swinging, swing)
 
 
@@ -361,23 +388,33 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     elif not follows_terrain:
         _copy_rows(feet, _touchdown(parameters, twist), touched)     # the ellipse's end
     swinging &= ~touched
+    raises = p.max_swing_height > 0.0
+    if raises:
+        _remember_landings(s, touched)
     searching = swinging & ~now
     _store_flags(s.searching, searching)
+    _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
     if searching.any():
         _search(feet, swinging, searching, search_floor, p.search_speed * dt)
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
+    if raises:
+        _plan_lifts(parameters, s, lifting, ~swinging)
     swinging |= lifting
     _store_flags(s.swinging, swinging)
     _store_flags(s.scheduled, now)
     touchdown = _touchdown(parameters, twist)
+    if raises:
+        _beyond_edges(parameters, s, touchdown)
     plane_height = 0.0
     if follows_terrain:
-        plane_height, slope_x, slope_y = _walk_plane(feet, ~swinging, p.neutral_height)
+        plane_height, slope_x, slope_y = walk_plane(feet, ~swinging, p.neutral_height)
         for leg in range(6):
             touchdown[leg, 2] = plane_height + touchdown[leg, 0] * slope_x + touchdown[leg, 1] * slope_y
     _move_stance(feet, ~swinging, twist, dt)
+    if raises:
+        _move_edges(s.edge, twist, feet, dt)
     if not follows_terrain:
         _settle_stance(feet, swinging, p.neutral, dt)
     in_swing = swinging & now
@@ -386,14 +423,120 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         _hold_blocked(liftoff, blocked, progress, touchdown, feet, twist, dt)
     elif blocked.any():
         _hold_blocked(liftoff, blocked, progress, touchdown, measured, twist, dt)
-    _move_swing(feet, liftoff, progress, in_swing, touchdown, p.swing_height)
+        if raises:
+            _lift_over(parameters, s, blocked, measured)
+    _move_swing(feet, liftoff, progress, in_swing, touchdown, s.lift)
+    if raises:
+        _keep_over_edges(parameters, s, in_swing)
     for leg in range(6):
         if swinging[leg]:
             search_floor[leg] = touchdown[leg, 2] - p.search_depth
     if not follows_terrain:
         return False, 0.0
-    return False, _follow_walk_plane(feet, liftoff, search_floor, plane_height - p.neutral_height,
-                                     min(1.0, dt / p.plane_time_constant))
+    shift = _follow_walk_plane(feet, liftoff, search_floor, plane_height - p.neutral_height,
+                               min(1.0, dt / p.plane_time_constant))
+    for leg in range(6):
+        s.edge[leg, 1] -= shift
+    return False, shift
+
+
+@njit(cache=True)
+def _remember_landings(s, touched):
+    """A foot that landed forgets its riser; a swing that was never blocked clears the extra
+    height the leg's next swing would have had."""
+    for leg in range(6):
+        if touched[leg]:
+            if math.isnan(s.edge[leg, 0]):
+                s.raised[leg] = 0.0
+            s.edge[leg, 0] = np.nan
+
+
+@njit(cache=True)
+def _plan_lifts(parameters, s, lifting, stance):
+    """The height of each new swing: the swing height, raised to clear by `clearance` the
+    highest stance foothold ahead of it on its side of the body (a rear foot follows the front
+    feet onto a step) and by what the leg's last blocked swing needed; at most max_swing_height."""
+    p = parameters[0]
+    feet = s.feet
+    for leg in range(6):
+        if not lifting[leg]:
+            continue
+        needed = p.swing_height + s.raised[leg]
+        for other in range(6):
+            if stance[other] and other != leg and feet[other, 1] * feet[leg, 1] > 0.0 \
+                    and feet[other, 0] > feet[leg, 0]:
+                needed = max(needed, feet[other, 2] - feet[leg, 2] + p.clearance)
+        s.lift[leg] = min(needed, p.max_swing_height)
+
+
+@njit(cache=True)
+def _lift_over(parameters, s, blocked, measured):
+    """A swing foot blocked on its way up (a riser): its swing rises to clear the foot's height
+    by `clearance` (at most max_swing_height), the leg's next swing as well, and the riser is
+    remembered (its x, and the highest the foot touched it) so that the foot lands beyond it."""
+    p = parameters[0]
+    for leg in range(6):
+        risen = measured[leg, 2] - s.liftoff[leg, 2]
+        # a foot still at the height it left is only leaving the ground
+        if blocked[leg] and risen > RISER_HEIGHT:
+            needed = risen + p.clearance
+            s.lift[leg] = min(max(s.lift[leg], needed), p.max_swing_height)
+            s.raised[leg] = max(s.raised[leg], s.lift[leg] - p.swing_height)
+            if math.isnan(s.edge[leg, 0]):
+                s.edge[leg, 0], s.edge[leg, 1] = measured[leg, 0], measured[leg, 2]
+            s.edge[leg, 0] = max(s.edge[leg, 0], measured[leg, 0])
+            s.edge[leg, 1] = max(s.edge[leg, 1], measured[leg, 2])
+
+
+@njit(cache=True)
+def _move_edges(edge, twist, feet, dt):
+    """Remembered risers are on the ground: they move against the body twist like stance feet."""
+    vx, vy, wz = twist
+    for leg in range(6):
+        if not math.isnan(edge[leg, 0]):
+            velocity_x, _ = _ground_velocity(edge[leg, 0], feet[leg, 1], vx, vy, wz)
+            edge[leg, 0] -= velocity_x * dt
+
+
+@njit(cache=True)
+def _beyond_edges(parameters, s, touchdown):
+    """A foot that met a riser lands at least edge_margin beyond it (not on its corner), at most
+    edge_margin further than its planned touch-down."""
+    p = parameters[0]
+    for leg in range(6):
+        if not math.isnan(s.edge[leg, 0]):
+            planned = touchdown[leg, 0]
+            touchdown[leg, 0] = min(max(planned, s.edge[leg, 0] + p.edge_margin), planned + p.edge_margin)
+
+
+@njit(cache=True)
+def _keep_over_edges(parameters, s, in_swing):
+    """A swing foot short of the riser it met stays `clearance` above the highest point where it
+    touched it, so that it does not come down on the corner."""
+    p = parameters[0]
+    for leg in range(6):
+        if in_swing[leg] and not math.isnan(s.edge[leg, 0]) and s.feet[leg, 0] < s.edge[leg, 0] + p.edge_margin:
+            s.feet[leg, 2] = max(s.feet[leg, 2], s.edge[leg, 1] + p.clearance)
+
+
+@njit(cache=True)
+def _rotate_frame(state, rotation):
+    """GaitGenerator.rotate on a GAIT_STATE record: rows p -> rotation p of the targets and swing
+    starts; each search floor moves with its foot's height."""
+    s = state[0]
+    feet, liftoff, search_floor = s.feet, s.liftoff, s.search_floor
+    for leg in range(6):
+        before = feet[leg, 2]
+        _rotate_row(feet, leg, rotation)
+        _rotate_row(liftoff, leg, rotation)
+        search_floor[leg] += feet[leg, 2] - before
+
+
+@njit(cache=True)
+def _rotate_row(points, row, rotation):
+    x, y, z = points[row, 0], points[row, 1], points[row, 2]
+    for axis in range(3):
+        points[row, axis] = rotation[axis, 0] * x + rotation[axis, 1] * y + rotation[axis, 2] * z
 
 
 @njit(cache=True)
@@ -445,7 +588,7 @@ def _search(feet, swinging, searching, search_floor, drop):
 
 
 @njit(cache=True)
-def _walk_plane(feet, stance, neutral_height):
+def walk_plane(feet, stance, neutral_height):
     """(c0, cx, cy) of the stance feet's least-squares plane z = c0 + cx x + cy y (gait frame);
     the neutral stance's level with fewer than three stance feet. The normal equations
     D^T D c = D^T z of the design rows D = (1, x, y), solved by Cramer's rule."""

@@ -13,6 +13,7 @@ from numba import njit
 
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from estimators.base import Estimate
+from testbed.control.contact_check import ContactCheck
 from testbed.control.controller import Controller
 from testbed.control.gait import GAITS, GaitGenerator, TerrainAdaptation, Twist
 from testbed.model.kinematics import (LegGeometry, elbow_sign, foot_positions, joint_targets_or_last,
@@ -20,8 +21,8 @@ from testbed.model.kinematics import (LegGeometry, elbow_sign, foot_positions, j
 from testbed.control.navigation import TargetWalker
 from testbed.control.odometry import GyroHeading, LegOdometry
 from testbed.control.posture import (POSTURE_LAWS, PostureCorrection, PostureMeasurement, body_frame_targets,
-                                     checked_correction, estimated_height, kinematic_height, tilted_targets,
-                                     untilted_positions)
+                                     checked_correction, estimated_height, kinematic_height, levelling_rotation,
+                                     tilted_targets, untilted_positions)
 from testbed.control.command import Command
 from testbed.model.errors import PluginFailure
 from testbed.control.startup import CalibrationPoses
@@ -78,7 +79,14 @@ class Pilot(Controller):
         self.heading_reference = 0.0
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None
         self.walking_gait = GAITS.resolve(config.run.gait).walks
-        self.foot_contact = np.ones(6, dtype=bool)
+        self.foot_contact = np.ones(6, dtype=bool)     # the contact flags the gait uses (checked)
+        self.sensor_contact = np.ones(6, dtype=bool)   # the foot sensors' latest flags
+        self.foot_forces = np.zeros(6)
+        # a foot's no-load speed: the servos' at the tibia's length
+        self.contact_check = ContactCheck(config.robot.servo_gain, self.dt, 1.0 / config.sensors.encoder.rate,
+                                          config.robot.servo_speed_limit * config.robot.tibia_length)
+        # share per tick of the gait frame's tilt that is turned out (none without a posture law)
+        self.gait_level_rate = min(1.0, self.dt / config.posture.gait_level_time_constant) if self.use_posture else 0.0
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
 
@@ -87,6 +95,7 @@ class Pilot(Controller):
         self.joint_targets = np.array(joint_positions, dtype=float)
         self.encoder_positions = self.joint_targets.copy()
         self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)    # body frame, per encoder sample
+        self.body_targets = self.encoder_feet.copy()                                  # body frame, the last tick's
         self.gait = GaitGenerator(name, self.encoder_feet.copy(), period, swing_height, adaptation, lead=lead)
 
     def command_details(self) -> Command | None:
@@ -103,16 +112,22 @@ class Pilot(Controller):
         twist = self._twist(t) if walking else STILL
         gait, gait_time = self.gait, t - startup_time
         if walking:
-            feet = gait.step(gait_time, self.dt, twist, self.foot_contact, self._measured_feet())
+            measured = self._measured_feet()
+            self.foot_contact = self.contact_check.update(self.sensor_contact, self.foot_forces, self.encoder_feet,
+                                                          measured, self.body_targets, gait.state_record)
+            feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
         # The law engages once the start-up (still, then the calibration poses) is over.
         if self.posture_law is not None and t >= startup_time and self.latest_estimate is not None:
-            self.correction = self._posture_update(t, self._posture_measurement(self.truth_attitude))
+            measurement = self._posture_measurement(self.truth_attitude)
+            self.correction = self._posture_update(t, measurement)
+            self._level_gait_frame(measurement.roll, measurement.pitch)
         tilt = self.startup.body_tilt(t) if t < startup_time else NO_TILT
         feet, self.joint_targets, reachable = body_targets_and_joints(
             feet, tuple(self.correction), tilt, self.geometry.arrays, self.joint_targets, self.encoder_feet,
             self._gait_frame_feet)
+        self.body_targets = feet
         self._gait_frame_stale = self.posture_law is None
         limited = not reachable
         self.ik_limited_last = limited
@@ -121,6 +136,19 @@ class Pilot(Controller):
         self.last_command = Command(t, gait.phase(gait.clock(gait_time)), gait.state.swinging.copy(), feet,
                                     self.joint_targets, np.array([twist.vx, twist.vy, twist.wz]))
         return self.joint_targets
+
+    def _level_gait_frame(self, roll: float, pitch: float) -> None:
+        """Turn the gait frame towards level, by its tilt with respect to gravity (the estimated
+        attitude less the correction) over `posture.gait_level_time_constant`.
+
+        Nothing else ties the gait frame to gravity: a foot lands where the encoders put it
+        through the correction, so the stance plane takes whatever tilt the correction has, and
+        a bias in the landings (the servos' lag, the legs' sag) would turn the frame a little
+        every step, and the correction with it, without bound (docs/control.md)."""
+        if self.gait_level_rate <= 0.0:
+            return
+        correction = self.correction
+        self.gait.rotate(levelling_rotation(roll, pitch, correction.roll, correction.pitch, self.gait_level_rate))
 
     def _posture_update(self, t: float, measurement: PostureMeasurement) -> PostureCorrection:
         """The law's correction; whatever it raises or returns malformed is a one-line PluginFailure."""
@@ -159,7 +187,10 @@ class Pilot(Controller):
             if isinstance(sample, ImuSample):
                 heading.update(sample.t, sample.gyro)
             elif isinstance(sample, FootSample):
-                self.foot_contact = np.asarray(sample.contact, dtype=bool)
+                self.sensor_contact = np.asarray(sample.contact, dtype=bool)
+                self.foot_forces = np.asarray(sample.normal_forces, dtype=float)
+                if not (self.walking_gait and sample.t >= self.startup_time):
+                    self.foot_contact = self.sensor_contact
             elif isinstance(sample, EncoderSample):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
@@ -194,7 +225,8 @@ class PosturePilot(Pilot):
 def terrain_adaptation(config) -> TerrainAdaptation:
     posture = config.posture
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
-                             posture.walk_plane_time_constant)
+                             posture.walk_plane_time_constant, posture.step_clearance, posture.max_swing_height,
+                             posture.edge_margin)
 
 
 NO_TILT = (0.0, 0.0)

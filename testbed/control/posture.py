@@ -139,6 +139,27 @@ def correction_rotation(roll: float, pitch: float) -> np.ndarray:
     return rotation
 
 
+@njit(cache=True)
+def gait_frame_tilt(roll: float, pitch: float, correction_roll: float, correction_pitch: float) -> tuple[float, float]:
+    """(roll, pitch) of the gait frame with respect to gravity, for the body's attitude (roll,
+    pitch) and the correction (the body's pose in the gait frame): R = R(body) R(correction)^T,
+    read from its last row (the vertical in the gait frame)."""
+    body, correction = correction_rotation(roll, pitch), correction_rotation(correction_roll, correction_pitch)
+    up = np.zeros(3)
+    for column in range(3):
+        for k in range(3):
+            up[column] += body[2, k] * correction[column, k]
+    return math.atan2(up[1], up[2]), math.asin(min(1.0, max(-1.0, -up[0])))
+
+
+@njit(cache=True)
+def levelling_rotation(roll: float, pitch: float, correction_roll: float, correction_pitch: float,
+                       share: float) -> np.ndarray:
+    """The turn of the gait frame's contents that takes out `share` of the frame's tilt."""
+    frame_roll, frame_pitch = gait_frame_tilt(roll, pitch, correction_roll, correction_pitch)
+    return correction_rotation(share * frame_roll, share * frame_pitch)
+
+
 def body_frame_targets(feet: np.ndarray, correction: PostureCorrection) -> np.ndarray:
     """Gait-frame foot targets (n, 3) -> body-frame targets: rows R^T (p - d)."""
     return (feet - [0.0, 0.0, correction.height]) @ correction_rotation(correction.roll, correction.pitch)

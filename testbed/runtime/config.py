@@ -21,7 +21,7 @@ import tomli_w
 from estimators.config import EstimatorsConfig
 from estimators.registry import check_estimator_spec
 from sensors.config import SensorsConfig
-from testbed.control.config import GaitConfig, PostureConfig
+from testbed.control.config import ClimbLimits, GaitConfig, PostureConfig
 from testbed.control.controller import CONTROLLERS
 from testbed.control.gait import GAITS
 from testbed.model.robot_config import RobotConfig
@@ -76,6 +76,7 @@ class Config:
 
     def __post_init__(self) -> None:
         self._check_stride()
+        self._check_climb()
         check_terrain_config(self)
 
     def _check_stride(self) -> None:
@@ -90,6 +91,33 @@ class Config:
         require(stride <= self.gait.max_step_length + 1e-12,
                  f"speed {speed:g} m/s needs a {stride * 100:.1f} cm stride with the {self.run.gait} gait, "
                  f"more than gait.max_step_length {self.gait.max_step_length * 100:.1f} cm")
+
+    def climb_limits(self) -> ClimbLimits | None:
+        """What the built-in pilot's feet can clear and reach down to: with the posture controller
+        its raised swings and ground search (`PostureConfig.climb_limits`), without it the swing
+        height; None with a plugin controller, whose feet are its own business."""
+        swing = self.gait.swing_height
+        if self.run.controller == "posture":
+            return self.posture.climb_limits(swing)
+        return ClimbLimits(swing, swing, swing) if self.run.controller == "none" else None
+
+    def _check_climb(self) -> None:
+        """A step or rough ground the posture controller's feet cannot clear or reach down to is
+        a config error (courses and height maps: their terrain's `check_config`)."""
+        if self.run.controller != "posture" or self.run.terrain not in ("step", "rough"):
+            return
+        limits = self.climb_limits()
+        if self.run.terrain == "step":
+            height = self.terrain.step_height
+            require(height <= limits.up + 1e-12, f"terrain.step_height {height:g} m is higher than the feet can clear: "
+                                                 f"at most {limits.up:g} m (posture.max_swing_height less posture.step_clearance)")
+            require(-height <= limits.down + 1e-12, f"terrain.step_height {height:g} m is deeper than the feet reach "
+                                                    f"down: at most {limits.down:g} m (posture.search_depth)")
+            return
+        amplitude = self.terrain.rough_amplitude
+        require(amplitude <= limits.rough_amplitude + 1e-12,
+                 f"terrain.rough_amplitude {amplitude:g} m is more than the feet can clear or reach down: at most "
+                 f"{limits.rough_amplitude:g} m (half posture.max_swing_height, posture.search_depth)")
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))

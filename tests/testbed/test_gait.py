@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, _walk_plane
+from testbed.control.gait import GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, walk_plane
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -215,7 +215,7 @@ def test_the_walk_plane_is_the_least_squares_plane_of_the_stance_feet():
     for _ in range(3000):
         feet = NEUTRAL + rng.normal(0.0, 0.02, NEUTRAL.shape)
         stance = rng.random(6) < 0.7
-        plane = _walk_plane(feet, stance, -0.08)
+        plane = walk_plane(feet, stance, -0.08)
         if stance.sum() < 3:
             assert plane == (-0.08, 0.0, 0.0)
             continue

@@ -114,12 +114,13 @@ def test_the_map_travels_in_the_recording_and_run_from_needs_no_file(tmp_path, m
     from datasets.commands import config_from_mcap
     from datasets.dataset import Dataset
     from datasets.writer import DatasetWriter
+    from testbed.model.robot import build_urdf
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     heights = wavy()
     np.save(tmp_path / "map.npy", heights)
     cfg = map_config(tmp_path / "map.npy", spec="heightmap")
     writer = DatasetWriter(tmp_path / "run.mcap")
-    writer.describe_run({"terrain": "heightmap"}, cfg, "<robot/>")
+    writer.describe_run({"terrain": "heightmap"}, cfg, build_urdf(cfg.robot))
     writer.close({}, {"error": ""})
     (tmp_path / "map.npy").unlink()
     restored = config.load(overrides={"run": {"seed": 9}}, base=config_from_mcap(tmp_path / "run.mcap"))

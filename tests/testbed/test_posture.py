@@ -15,12 +15,12 @@ import pytest
 
 from testbed.runtime import config
 from testbed.model.errors import ConfigError, PluginFailure
-from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist
+from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist, walk_plane
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.control.posture import (POSTURE_LAWS, PiLoop, PiPostureLaw, PostureCorrection, PostureMeasurement,
                                      body_frame_targets, checked_correction, correction_rotation, gait_frame_positions,
-                                     kinematic_height, tilted_targets, untilted_positions)
-from testbed.runtime.runner import run
+                                     gait_frame_tilt, kinematic_height, tilted_targets, untilted_positions)
+from testbed.runtime.runner import build_parts, run
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -287,3 +287,97 @@ def test_bad_posture_laws_are_reported_in_one_line(tmp_path):
         reported = [line for line in err.splitlines() if line.startswith("testbed: ")]
         assert returned == code and len(reported) == 1 and "Traceback" not in err, (law, err)
         assert "posture law" in reported[0] and message in reported[0], reported
+
+
+def test_the_gait_frame_tilt_is_the_body_attitude_less_the_correction():
+    # A body pitched 3 deg with respect to gravity that the correction pitches 1 deg in its gait
+    # frame: the frame itself is pitched 2 deg.
+    roll, pitch = gait_frame_tilt(0.0, math.radians(3.0), 0.0, math.radians(1.0))
+    assert math.degrees(pitch) == pytest.approx(2.0, abs=1e-12) and roll == pytest.approx(0.0, abs=1e-15)
+    # For roll and pitch together the frame is R(body) R(correction)^T, to first order the difference.
+    roll, pitch = gait_frame_tilt(0.02, -0.03, 0.005, 0.01)
+    frame = correction_rotation(0.02, -0.03) @ correction_rotation(0.005, 0.01).T
+    np.testing.assert_allclose(correction_rotation(roll, pitch)[2], frame[2], rtol=0, atol=1e-12)
+    assert roll == pytest.approx(0.015, abs=5e-4) and pitch == pytest.approx(-0.04, abs=5e-4)
+
+
+def test_turning_the_gait_frame_turns_its_targets_and_moves_search_floors_with_them():
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, ADAPT)
+    gait.search_floor[:] = NEUTRAL[:, 2] - 0.06
+    turn = correction_rotation(0.0, math.radians(2.0))
+    gait.rotate(turn)
+    np.testing.assert_allclose(gait.state.feet, NEUTRAL @ turn.T, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(gait.search_floor, gait.state.feet[:, 2] - 0.06, rtol=0, atol=1e-15)
+
+
+STEPS = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=0.3,
+                          clearance=0.02, max_swing_height=0.08, edge_margin=0.03)
+
+
+def test_a_swing_behind_a_higher_foothold_on_its_side_lifts_to_clear_it():
+    """The front feet stand 5 cm higher (a step): the middle legs, whose swings start behind
+    them, lift 5 cm + the 2 cm clearance; the front feet, with nothing ahead, lift 5 cm."""
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPS)
+    walk(gait, 4000, ground_at(-0.05))
+    lift = gait.state_record["lift"][0]
+    assert lift[[1, 4]] == pytest.approx(0.07, abs=2e-3)
+    assert lift[[0, 5]] == pytest.approx(0.05, abs=1e-12)
+    # Never above the highest swing the legs reach.
+    higher = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPS)
+    walk(higher, 4000, ground_at(-0.075))
+    assert higher.state_record["lift"][0].max() == pytest.approx(0.08, abs=1e-12)
+
+
+def test_a_step_the_feet_cannot_clear_or_reach_down_to_is_refused():
+    base = {"run": {"terrain": "step", "controller": "posture", "estimator": "ekf"}}
+    config.load(None, {**base, "terrain": {"step_height": 0.06}})
+    config.load(None, {**base, "terrain": {"step_height": -0.06}})
+    with pytest.raises(ConfigError, match="higher than the feet can clear: at most 0.06 m"):
+        config.load(None, {**base, "terrain": {"step_height": 0.065}})
+    with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.06 m"):
+        config.load(None, {**base, "terrain": {"step_height": -0.07}})
+    rough = {"run": {**base["run"], "terrain": "rough"}}
+    config.load(None, {**rough, "terrain": {"rough_amplitude": 0.035}})
+    with pytest.raises(ConfigError, match="rough_amplitude 0.045 m is more than the feet can clear"):
+        config.load(None, {**rough, "terrain": {"rough_amplitude": 0.045}})
+
+
+WALK = {"run": {"gait": "tripod", "estimator": "ekf", "controller": "posture"}}
+
+
+def recording_corrections(cfg):
+    """Run `cfg`, keeping the pilot's posture correction of every tick: (metrics, (n, 3), pilot)."""
+    parts = build_parts(cfg)
+    pilot, corrections = parts.controller, []
+    tick = pilot.tick
+
+    def recorded(t, samples, estimate):
+        targets = tick(t, samples, estimate)
+        corrections.append(tuple(pilot.correction))
+        return targets
+    pilot.tick = recorded
+    return run(cfg, parts=parts).metrics, np.array(corrections), pilot
+
+
+@pytest.mark.slow
+def test_on_level_ground_the_posture_correction_and_the_walk_plane_stay_level():
+    """Before the gait frame was levelled the pitch correction ramped at about -0.3 deg/s
+    (-4.3 deg at 15 s, at its 15 deg limit by 38 s) while the stance plane tilted the other way."""
+    cfg = config.load(None, {"run": {**WALK["run"], "terrain": "flat", "duration": 15.0, "seed": 5}})
+    metrics, corrections, pilot = recording_corrections(cfg)
+    last_five_seconds = np.degrees(np.abs(corrections[-5000:, :2]))
+    assert last_five_seconds.max() < 1.0
+    gait = pilot.gait
+    _, slope_x, slope_y = walk_plane(gait.state.feet, ~gait.state.swinging, 0.0)
+    assert math.degrees(math.atan(math.hypot(slope_x, slope_y))) < 1.0
+    assert not metrics["fell"] and metrics["tilt_max_deg"] < 1.0 and metrics["tilt_rms_deg"] < 0.3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("height", [0.06, -0.06])
+def test_a_6_cm_step_is_crossed_without_falling(height):
+    """Every leg crosses the step by 10 s (up: the front feet at about 4 s, the rear by 9 s)."""
+    cfg = config.load(None, {"run": {**WALK["run"], "terrain": "step", "duration": 10.0, "seed": 1},
+                             "terrain": {"step_height": height}})
+    metrics = run(cfg).metrics
+    assert not metrics["fell"] and metrics["tilt_max_deg"] < 6.0

@@ -104,23 +104,28 @@ def _ramp_box(piece: Piece, y0: float, y1: float, bottom: float) -> Boxes:
     return Boxes((top_middle - half[2] * rotation[:, 2])[None], half[None], rotation[None])
 
 
-def _check_walkable(segment: CourseSegment, where: str, foot_radius: float, swing_height: float) -> None:
-    """Treads and blocks at least as wide as the foot; rises, drops and block heights the swing
-    clears (it lifts the foot swing_height above the ground the gait plans on)."""
-    if segment.kind in ("step", "stairs"):
-        rise = segment.height if segment.kind == "step" else segment.rise
-        require(abs(rise) <= swing_height + 1e-12,
-                f"{where}: a {abs(rise) * 100:.1f} cm {'rise' if rise > 0 else 'drop'} is more than the legs "
-                f"can step over with gait.swing_height {swing_height * 100:.1f} cm")
+def _check_walkable(segment: CourseSegment, where: str, foot_radius: float, limits) -> None:
+    """Treads and blocks at least as wide as the foot; rises, drops and rough amplitudes within
+    `limits` (the run's `Config.climb_limits()`: up, down, rough_amplitude in m; None: not checked)."""
     if segment.kind == "stairs":
         require(segment.tread >= 2 * foot_radius, f"{where}: tread {segment.tread} m is narrower than the foot "
                                                   f"({2 * foot_radius} m, robot.foot_radius x 2)")
     if segment.kind == "rough":
         require(segment.cell >= 2 * foot_radius, f"{where}: cell {segment.cell} m is smaller than the foot "
                                                  f"({2 * foot_radius} m, robot.foot_radius x 2)")
-        require(segment.amplitude <= swing_height + 1e-12,
-                f"{where}: amplitude {segment.amplitude * 100:.1f} cm is more than the legs can step over "
-                f"with gait.swing_height {swing_height * 100:.1f} cm")
+    if limits is None:
+        return
+    if segment.kind in ("step", "stairs"):
+        rise = segment.height if segment.kind == "step" else segment.rise
+        limit = limits.up if rise > 0 else limits.down
+        require(abs(rise) <= limit + 1e-12,
+                f"{where}: a {abs(rise) * 100:.1f} cm {'rise' if rise > 0 else 'drop'} is more than the legs can "
+                f"{'clear' if rise > 0 else 'reach down'}: at most {limit * 100:.1f} cm (posture.max_swing_height "
+                f"less posture.step_clearance up, posture.search_depth down)")
+    if segment.kind == "rough":
+        require(segment.amplitude <= limits.rough_amplitude + 1e-12,
+                f"{where}: amplitude {segment.amplitude * 100:.1f} cm is more than the legs can clear or reach "
+                f"down: at most {limits.rough_amplitude * 100:.1f} cm")
 
 
 def _joined(parts: list[Boxes]) -> Boxes:
@@ -162,7 +167,7 @@ class CourseTerrain(Terrain):
                 f"terrain.course ends at x = {terrain.course_end:.3f} m, beyond terrain.extent's x_max {x_max} m")
         for index, segment in enumerate(terrain.course):
             _check_walkable(segment, f"terrain.course[{index}] ({segment.kind})", config.robot.foot_radius,
-                            config.gait.swing_height)
+                            config.climb_limits())
         blocks = sum(math.ceil(segment.length / segment.cell) * math.ceil((y_max - y_min) / segment.cell)
                      for segment in terrain.course if segment.kind == "rough")
         if blocks > MAX_BLOCKS:

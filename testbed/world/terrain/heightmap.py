@@ -40,8 +40,11 @@ class HeightmapTerrain(GridTerrain):
         require(x0 <= -reach and x1 >= reach and y0 <= -reach and y1 >= reach,
                 f"terrain.heightmap covers x [{x0:.3f}, {x1:.3f}], y [{y0:.3f}, {y1:.3f}] m: the robot's feet at "
                 f"its start need [{-reach:.3f}, {reach:.3f}] m around the origin")
+        limits = config.climb_limits()
+        if limits is None:
+            return
         jump = max(np.abs(np.diff(heights, axis=0)).max(), np.abs(np.diff(heights, axis=1)).max())
-        swing = config.gait.swing_height
-        require(jump <= swing + 1e-12, f"terrain.heightmap has a {jump * 100:.1f} cm step between neighbouring "
-                                       f"cells, more than the legs can step over with gait.swing_height "
-                                       f"{swing * 100:.1f} cm")
+        limit = min(limits.up, limits.down)
+        require(jump <= limit + 1e-12, f"terrain.heightmap has a {jump * 100:.1f} cm step between neighbouring "
+                                       f"cells, more than the legs can clear or reach down: at most "
+                                       f"{limit * 100:.1f} cm")

@@ -1,0 +1,102 @@
+"""The foot-contact check: flags that the legs' kinematics contradict are not believed, and a
+sensor that keeps lying is marked faulty; then a lying sensor does not make the robot fall."""
+
+import numpy as np
+import pytest
+
+from testbed.control.contact_check import ContactCheck, ContactLimits
+from testbed.control.gait import GAIT_STATE
+from testbed.runtime import config
+from testbed.runtime.runner import run
+
+DT = 0.001
+GAIN = 60.0
+NEUTRAL = np.array([[0.16, 0.16, -0.09], [0.0, 0.195, -0.09], [-0.16, 0.16, -0.09],
+                    [-0.16, -0.16, -0.09], [0.0, -0.195, -0.09], [0.16, -0.16, -0.09]])
+FRONT_LEFT = 0
+
+
+def check():
+    return ContactCheck(GAIN, DT, encoder_period=0.005, foot_speed=0.7)
+
+
+def tick(contact_check, feet, flags, swinging, landing, targets=None, forces=None):
+    """One tick with the feet standing still at `feet` (encoders = targets unless given); the
+    swings (`swinging`, `landing`) began at the neutral stance."""
+    targets = feet if targets is None else targets
+    forces = np.where(flags, 10.0, 0.0) if forces is None else forces
+    gait = np.zeros(1, GAIT_STATE)
+    gait["swinging"], gait["landing"], gait["liftoff"] = swinging, landing, NEUTRAL
+    return contact_check.update(np.asarray(flags), forces, feet, feet, targets, gait)
+
+
+def test_ground_reported_under_a_foot_high_in_the_air_is_not_believed_and_marks_the_sensor():
+    contact_check = check()
+    feet = NEUTRAL.copy()
+    feet[FRONT_LEFT, 2] += 0.04                     # 4 cm above the others' plane and its swing's start
+    swinging = landing = np.arange(6) == FRONT_LEFT
+    flags = np.ones(6, bool)
+    ticks = int(ContactLimits().fault_time / DT)
+    for _ in range(ticks - 2):
+        contact = tick(contact_check, feet, flags, swinging, landing)
+        assert not contact[FRONT_LEFT] and contact[1:].all()
+    assert not contact_check.faulty.any()
+    for _ in range(3):
+        tick(contact_check, feet, flags, swinging, landing)
+    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
+    assert contact_check.faults_detected == 1
+
+
+def test_a_foot_held_up_counts_as_touching_whatever_its_sensor_says():
+    contact_check = check()
+    feet = NEUTRAL.copy()
+    swinging = landing = np.arange(6) == FRONT_LEFT
+    targets = feet.copy()
+    targets[FRONT_LEFT, 2] -= 0.02                  # commanded 2 cm into what holds it
+    flags = ~swinging                               # its sensor reads nothing (stuck off)
+    contact = tick(contact_check, feet, flags, swinging, landing, targets=targets)
+    for _ in range(30):
+        contact = tick(contact_check, feet, flags, swinging, landing, targets=targets)
+    assert contact.all()
+    # The same foot following its target freely, 2 cm higher, stays in the air.
+    free = check()
+    for _ in range(30):
+        contact = tick(free, feet, flags, swinging, landing)
+    assert not contact[FRONT_LEFT]
+
+
+def test_a_dropped_reading_marks_the_sensor_at_once_and_the_stance_foot_stands():
+    contact_check = check()
+    forces = np.full(6, 10.0)
+    forces[2] = np.nan
+    contact = tick(contact_check, NEUTRAL, np.array([1, 1, 0, 1, 1, 1], bool), np.zeros(6, bool),
+                   np.zeros(6, bool), forces=forces)
+    assert contact_check.faulty[2] and contact.all()
+
+
+def test_a_marked_sensor_is_trusted_again_only_after_reading_both_air_and_ground():
+    contact_check = check()
+    contact_check.faulty[FRONT_LEFT] = True
+    recovery = int(ContactLimits().recovery_time / DT) + 2
+    high = NEUTRAL.copy()
+    high[FRONT_LEFT, 2] += 0.04
+    stance = np.zeros(6, bool)
+    for _ in range(recovery):                      # ground in stance, right, but only that
+        tick(contact_check, high, np.ones(6, bool), stance, stance)
+    assert contact_check.faulty[FRONT_LEFT]
+    swinging = np.arange(6) == FRONT_LEFT
+    for _ in range(recovery):                      # and no ground in the air
+        tick(contact_check, high, ~swinging, swinging, swinging)
+    assert not contact_check.faulty[FRONT_LEFT]
+
+
+FLAT = {"run": {"terrain": "flat", "gait": "tripod", "estimator": "ekf", "controller": "posture", "seed": 4}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", ["foot.leg1.stuck@4.5s+2s:20", "foot.leg2.stuck@4.5s+2s:0", "foot.dropout@4.5s+1s"])
+def test_a_lying_foot_sensor_does_not_tip_the_robot(fault):
+    """Stuck at 20 N (the robot fell at 42 deg before the check), stuck at 0 N, all dropping out."""
+    cfg = config.load(None, {**FLAT, "run": {**FLAT["run"], "duration": 7.0}, "sensors": {"faults": [fault]}})
+    metrics = run(cfg).metrics
+    assert not metrics["fell"] and metrics["tilt_max_deg"] < 2.0
