@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from operator import attrgetter
 from typing import Any, NamedTuple
+from xml.etree import ElementTree
 
 import numpy as np
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -148,8 +149,12 @@ class Encoder:
 
     def describe_robot(self, urdf: str) -> None:
         """Publish every link's frame on /tf from now on: the joints of `urdf` (`links.LinkTree`),
-        each at the joint positions of the truth state."""
-        self._links = LinkTree.from_urdf(urdf)
+        each at the joint positions of the truth state. A URDF that is not the hexapod's (a
+        foreign recording replayed into a new file) leaves /tf with the body's frame alone."""
+        try:
+            self._links = LinkTree.from_urdf(urdf)
+        except (ElementTree.ParseError, ValueError):
+            return
         for joint in self._links.joints:
             transform = self._transforms.transforms.add(parent_frame_id=joint.parent, child_frame_id=joint.child)
             transform.translation.x, transform.translation.y, transform.translation.z = joint.translation
