@@ -95,9 +95,15 @@ def test_a_ctrl_c_as_the_file_appears_leaves_no_empty_file(tmp_path):
     assert_valid(out)
 
 
+def loads_numpy(process) -> bool:
+    """Whether the process has loaded numpy's library: the command line's imports are under way
+    (it installs its Ctrl-C handler before any of them)."""
+    return "numpy" in Path(f"/proc/{process.pid}/maps").read_text()
+
+
 def test_a_ctrl_c_during_the_imports_exits_130_without_a_traceback(tmp_path):
     process = start(*WALK, "--duration", "1", "--out", str(tmp_path / "x.mcap"))
-    time.sleep(0.3)
+    wait_for(lambda: loads_numpy(process), 60)
     process.send_signal(signal.SIGINT)
     status, _, err = finish(process)
     assert status == 130 and err.strip() == "testbed: interrupted"
