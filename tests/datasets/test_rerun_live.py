@@ -31,8 +31,9 @@ def free_port() -> int:
 def sink(tmp_path):
     """(URL, the .rrd it saves to) of a headless Rerun server on a free local port."""
     port, rrd = free_port(), tmp_path / "received.rrd"
+    # Its own process group: the `rerun` command runs the viewer's binary as a child of its own.
     server = subprocess.Popen([str(RERUN), "--serve-grpc", "--port", str(port), "--save", str(rrd)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
         with socket.socket() as probe:
@@ -40,11 +41,11 @@ def sink(tmp_path):
                 break
         time.sleep(0.1)
     yield f"rerun+http://127.0.0.1:{port}/proxy", rrd
-    server.send_signal(signal.SIGINT)
+    os.killpg(server.pid, signal.SIGINT)
     try:
         server.wait(timeout=20)
     except subprocess.TimeoutExpired:
-        server.kill()
+        os.killpg(server.pid, signal.SIGKILL)
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")     # read while the server still writes it
