@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 # controller keeping the body level, recorded to MCAP and converted for the Rerun viewer.
 run: $(STAMP)
 	$(BIN)/testbed run --terrain step --gait tripod --estimator ekf --controller posture --duration 10 \
-		--out runs/main.mcap --rerun runs/main.rrd --metrics runs/main_metrics.json
+		--out runs/main.mcap --rerun runs/main.rrd --metrics runs/main_metrics.json --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
