@@ -2,8 +2,9 @@
 truth with the live run's scoring.
 
 The estimator is built by `estimators.registry.make_estimator` from the recorded config, and
-receives every recorded sample in the order the run loop gave them to the live estimator; the
-live estimator of the same name and config therefore produces bit-identical estimates again.
+receives the recorded samples of its `sample_types` (the replay reads only their topics) in the
+order the run loop gave them to the live estimator; the live estimator of the same name and
+config therefore produces bit-identical estimates again.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from sensors.samples import Sample
 from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
-SAMPLE_TOPICS = frozenset({schemas.SENSOR_PREFIX})
+EVERY_SENSOR_TOPIC = frozenset({schemas.SENSOR_PREFIX})
 SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 T = TypeVar("T")
 
@@ -68,7 +69,7 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
 def sample_topics(estimator_spec: str) -> frozenset[str]:
     """The topics of the samples the estimator reads (`Estimator.sample_types`)."""
     types = resolve_estimator(estimator_spec).sample_types
-    return SAMPLE_TOPICS if types is None else frozenset(codec.sample_topic(kind).name for kind in types)
+    return EVERY_SENSOR_TOPIC if types is None else frozenset(codec.sample_topic(kind).name for kind in types)
 
 
 def read_scoring_truth(path: str | Path) -> ScoringTruth:

@@ -114,6 +114,12 @@ def imu_position(config) -> np.ndarray:
     return np.array(config.sensors.imu.position, dtype=float)
 
 
+def samples_for(estimator: Estimator, samples: Iterable[Sample]) -> Iterable[Sample]:
+    """The samples of the classes the estimator reads (`Estimator.sample_types`; all when None)."""
+    types = estimator.sample_types
+    return samples if types is None else (sample for sample in samples if isinstance(sample, types))
+
+
 def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
     """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
-    return estimator.update_batch(samples)
+    return estimator.update_batch(samples_for(estimator, samples))

@@ -17,7 +17,7 @@ from typing import ContextManager, NamedTuple
 import numpy as np
 from numba.core.event import TimingListener, install_listener
 
-from estimators.base import Estimate, Estimator
+from estimators.base import Estimate, Estimator, samples_for
 from estimators.registry import NONE as NO_ESTIMATOR
 from estimators.registry import make_estimator
 from sensors.suite import SensorSuite
@@ -210,7 +210,7 @@ class Onboard:
     def __init__(self, parts: Parts):
         self.estimator_update = _guarded(parts.estimator.update, parts.estimator_spec, "update") \
             if parts.estimator is not None else None
-        self.estimator_types = parts.estimator.sample_types if parts.estimator is not None else None
+        self.estimator = parts.estimator
         self.controller = parts.controller
         self.controller_tick = _guarded(parts.controller.tick, parts.controller_spec, "tick")
         self.controller_spec = parts.controller_spec
@@ -222,8 +222,7 @@ class Onboard:
         estimates = []
         update = self.estimator_update
         if update is not None:
-            types = self.estimator_types
-            for sample in samples if types is None else [s for s in samples if isinstance(s, types)]:
+            for sample in samples_for(self.estimator, samples):
                 estimate = update(sample)
                 if estimate is not None:
                     if not isinstance(estimate, Estimate):

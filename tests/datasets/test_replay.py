@@ -97,3 +97,12 @@ def test_the_scoring_truth_is_read_beside_the_replay_and_its_errors_come_back(tm
 def in_background_value(function, *args):
     with in_background(function, *args) as value:
         return value()
+
+
+def test_a_replay_written_to_a_file_gives_the_estimator_only_its_sample_types(ekf_run, tmp_path):
+    """With --out every topic is read; the IMU-only estimator must still get the IMU samples alone."""
+    _, _, path = ekf_run
+    read_only_imu, read_everything = replay(path, "vqf"), replay(path, "vqf", out=tmp_path / "vqf.mcap")
+    assert len(read_everything.estimates) == len(read_only_imu.estimates) > 1900
+    assert all(a.t == b.t and np.array_equal(a.quaternion, b.quaternion)
+               for a, b in zip(read_everything.estimates, read_only_imu.estimates))
