@@ -152,6 +152,8 @@ class VqfEstimator(Estimator):
             start += 1
             if estimate is not None:
                 estimates.append(estimate)
+        if self.filter is None:         # too few samples to build it
+            return estimates
         readings = self._batch_readings([s for s in samples[start:] if isinstance(s, ImuSample)])
         if readings is None:
             return estimates + super().update_batch(samples[start:])

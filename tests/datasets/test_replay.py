@@ -106,3 +106,9 @@ def test_a_replay_written_to_a_file_gives_the_estimator_only_its_sample_types(ek
     assert len(read_everything.estimates) == len(read_only_imu.estimates) > 1900
     assert all(a.t == b.t and np.array_equal(a.quaternion, b.quaternion)
                for a, b in zip(read_everything.estimates, read_only_imu.estimates))
+
+
+def test_vqf_batch_of_fewer_samples_than_it_needs_to_start_gives_no_estimate(ekf_run):
+    config, ticks, _ = ekf_run
+    first_imu = next(s for tick in ticks for s in tick.samples if isinstance(s, ImuSample))
+    assert make_estimator("vqf", config.replace(run={"estimator": "vqf"})).update_batch([first_imu]) == []
