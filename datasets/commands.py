@@ -187,7 +187,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise UserError(f"--out {args.out} would overwrite the file being replayed")
         prepare_output(args.out, "--out", args.force)
     with damaged_file_errors(args.file):
-        result = replay(args.file, args.estimator, args.out, with_progress if show_progress(args.quiet) else iter)
+        result = replay(args.file, args.estimator, args.out, with_progress if show_progress(args.quiet) else None)
     if result.truncation_note:
         print(f"testbed: warning: {result.truncation_note}", file=sys.stderr)
     if args.metrics is not None:

@@ -32,8 +32,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from functools import cached_property
-from itertools import chain
-from operator import attrgetter
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +43,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from datasets import heightmap_store, schemas
+from datasets.message_columns import Ragged, message_columns
 from datasets.reader import RECORD_HEADER, chunk_records, message_index_pairs, message_payloads
 from testbed.model.errors import ConfigError, UserError
 from testbed.runtime import config as config_module
@@ -83,7 +82,6 @@ FOXGLOVE_FIELDS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
 }
 NS_PER_S = 1_000_000_000
 TRANSFORMS = "foxglove.FrameTransforms"     # /tf: a table of every frame's transform
-_DTYPES = {"double": float, "bool": bool, "uint32": np.int64, "string": object}
 
 
 @dataclass(frozen=True)
@@ -194,34 +192,22 @@ def _columns(message_class: type, payloads: list[bytes]) -> dict[str, np.ndarray
 
 
 def _hexapod_columns(message_class: type, payloads: list[bytes]) -> dict[str, np.ndarray]:
-    messages = list(map(message_class.FromString, payloads))
     columns: dict[str, np.ndarray] = {}
-    for name, type_name, kind in schemas.MESSAGES[message_class.DESCRIPTOR.name]:
-        dtype = _DTYPES[type_name]
-        if kind == "one":
-            columns[name] = np.fromiter(map(attrgetter(name), messages), dtype=dtype, count=len(messages))
-        elif kind == "maybe":
-            columns[name] = np.array([getattr(m, name) if m.HasField(name) else np.nan for m in messages], dtype=float)
+    for name, column in message_columns(message_class, payloads).items():
+        if isinstance(column, Ragged):
+            columns.update(_repeated_columns(name, column))
         else:
-            columns.update(_repeated_columns(name, dtype, list(map(attrgetter(name), messages))))
+            columns[name] = column
     return columns
 
 
-def _repeated_columns(name: str, dtype: type, rows: list) -> dict[str, np.ndarray]:
-    """The columns of a repeated field, `rows` its values in each message."""
-    lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
-    values = np.fromiter(chain.from_iterable(rows), dtype=dtype, count=int(lengths.sum()))
+def _repeated_columns(name: str, column: Ragged) -> dict[str, np.ndarray]:
+    """The table columns of a repeated field."""
     suffixes = SUFFIXES.get(name)
-    width = int(lengths.max(initial=0))
+    width = int(column.lengths.max(initial=0))
     if suffixes is None or width > len(suffixes):
         suffixes = tuple(f"_{i}" for i in range(width))
-    if np.all(lengths == len(suffixes)):
-        table = values.reshape(len(rows), len(suffixes))
-    else:
-        table = np.full((len(rows), len(suffixes)), np.nan)
-        row_of_value = np.repeat(np.arange(len(rows)), lengths)
-        column_of_value = np.arange(len(values)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-        table[row_of_value, column_of_value] = values
+    table = column.matrix() if column.width() == len(suffixes) else column.table(len(suffixes))
     return {name + suffix: table[:, i] for i, suffix in enumerate(suffixes)}
 
 

@@ -96,11 +96,10 @@ class ProgressRecorder:
                 self.bar.close(metrics.get("sim_time_s"))
 
 
-def with_progress(samples: list["Sample"], desc: str = "replay", stream: IO[str] | None = None) -> Iterator["Sample"]:
-    """The samples, in order, moving a bar over their time span as they are consumed."""
-    if not samples:
-        return iter(samples)
-    return _advancing(samples, SimTimeBar(samples[-1].t - samples[0].t, desc, stream))
+def with_progress(samples: Iterable["Sample"], span_s: float, desc: str = "replay",
+                  stream: IO[str] | None = None) -> Iterator["Sample"]:
+    """The samples, in order, moving a bar over their time span `span_s` (s) as they are consumed."""
+    return _advancing(samples, SimTimeBar(span_s, desc, stream))
 
 
 def _advancing(samples: Iterable["Sample"], bar: SimTimeBar) -> Iterator["Sample"]:

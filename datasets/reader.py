@@ -10,16 +10,12 @@ from __future__ import annotations
 
 import importlib
 import json
-import math
 import struct
 import zlib
 from xml.etree import ElementTree
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, field, fields
-from functools import partial
 from io import BytesIO
-from itertools import chain
-from operator import attrgetter
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -34,6 +30,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader
 import zstandard
 
 from datasets import codec, heightmap_store, schemas
+from datasets.message_columns import Ragged, message_columns
 from datasets.scoring import ScoringTruth
 from estimators.base import Estimate
 from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
@@ -159,22 +156,42 @@ class Recording:
         """Every sensor sample, in the order the run loop handed them to the estimator. Samples of
         a sensor plugin come back as instances of its sample class when that can be imported
         (and are left out otherwise: no estimator of this process could know them)."""
-        decoders = {topic: partial(_decode_samples, topic) for topic in schemas.SENSOR_TOPICS}
-        for topic, metadata in self.channel_metadata.items():
-            sample_class = _importable(metadata.get("sample_class"))
-            if sample_class is not None:
-                decoders[topic] = partial(_decode_each, partial(codec.decode_plugin_sample, sample_class))
-        samples, sequences, log_times = [], [], []
-        for topic, decode in decoders.items():
-            entries = self.messages.get(topic, [])
-            if entries:
-                topic_log_times, topic_sequences, payloads = zip(*entries)
-                samples += decode(payloads)
-                sequences += topic_sequences
-                log_times += topic_log_times
+        return [sample for block in self.sample_blocks() for sample in block.samples()]
+
+    def sample_blocks(self, block_size: int | None = None) -> Iterator["SampleBlock"]:
+        """`samples()` cut into blocks of `block_size` (one block when None), each still columns."""
+        plugin_classes = self._plugin_sample_classes()
+        topics = [topic for topic in (*schemas.SENSOR_TOPICS, *plugin_classes) if self.messages.get(topic)]
+        topic_of, payloads, order = self._handing_order(topics)
+        block_size = block_size or max(len(order), 1)
+        for first in range(0, len(order), block_size):
+            rows = order[first:first + block_size]
+            parts = []
+            for index, topic in enumerate(topics):
+                positions = np.flatnonzero(topic_of[rows] == index)
+                if len(positions):
+                    topic_payloads = [payloads[row] for row in rows[positions].tolist()]
+                    parts.append((topic, positions, _sample_columns(topic, topic_payloads, plugin_classes.get(topic))))
+            yield SampleBlock(len(rows), parts)
+
+    def _handing_order(self, topics: list[str]) -> tuple[np.ndarray, list[bytes], np.ndarray]:
+        """The messages of `topics` one after the other: the index in `topics` of each, their
+        payloads, and the order in which the run loop handed their samples over."""
+        topic_indexes, log_times, sequences, payloads = [], [], [], []
+        for index, topic in enumerate(topics):
+            topic_log_times, topic_sequences, topic_payloads = zip(*self.messages[topic])
+            topic_indexes += [index] * len(topic_payloads)
+            log_times += topic_log_times
+            sequences += topic_sequences
+            payloads += topic_payloads
         # The recorder numbers samples in handing order: by sequence, then log time.
         order = np.lexsort((np.array(log_times, dtype=np.int64), np.array(sequences, dtype=np.int64)))
-        return list(map(samples.__getitem__, order.tolist()))
+        return np.array(topic_indexes, dtype=np.int64), payloads, order
+
+    def _plugin_sample_classes(self) -> dict[str, type]:
+        """The sample classes of the sensor plugins' topics that can be imported here."""
+        classes = {topic: _importable(metadata.get("sample_class")) for topic, metadata in self.channel_metadata.items()}
+        return {topic: sample_class for topic, sample_class in classes.items() if sample_class is not None}
 
     def estimates(self) -> list[Estimate]:
         return self._decoded(schemas.ESTIMATE.name, codec.decode_estimate)
@@ -187,13 +204,11 @@ class Recording:
         pairs = [(k, feet_index[log_ns]) for k, (log_ns, _, _) in enumerate(pose_entries) if log_ns in feet_index]
         pose_rows, feet_rows = (list(rows) for rows in zip(*pairs)) if pairs else ([], [])
         positions, quaternions = _decode_poses([pose_entries[k][2] for k in pose_rows])
-        feet = [schemas.FeetTruthMsg.FromString(feet_entries[k][2]) for k in feet_rows]
-        foot_positions = _repeated_column(feet, "foot_positions", float, (6, 3))
-        foot_contact = _repeated_column(feet, "foot_contact", bool, (6,))
+        feet = message_columns(schemas.FeetTruthMsg, [feet_entries[k][2] for k in feet_rows])
+        foot_positions, foot_contact = feet["foot_positions"].rows(6, 3), feet["foot_contact"].rows(6)
         if foot_positions is None or foot_contact is None:
             raise UserError(f"{self.path}: its {schemas.TRUTH_FEET.name} messages do not hold six feet each")
-        return ScoringTruth(np.fromiter(map(attrgetter("t"), feet), dtype=float, count=len(feet)), quaternions,
-                            positions, foot_positions, foot_contact)
+        return ScoringTruth(feet["t"], quaternions, positions, foot_positions, foot_contact)
 
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t (N,) s, positions (N, 3), quaternions (N, 4)) of /truth/pose."""
@@ -223,40 +238,42 @@ class Recording:
 _SAMPLE_CLASSES = {schemas.IMU.name: ImuSample, schemas.ACCEL_ARRAY.name: AccelSample,
                    schemas.ENCODERS.name: EncoderSample, schemas.FEET.name: FootSample}
 _MESSAGE_CLASSES = {topic.name: topic.message_class for topic in schemas.TOPICS}
-_ARRAY_DTYPES = {"double": float, "bool": bool}
 
 
-def _decode_each(decode: Callable[[bytes], Any], payloads: Sequence[bytes]) -> list:
-    return [decode(data) for data in payloads]
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive samples in handing order, held as columns per topic until `samples()` (so that a
+    block passes cheaply between processes)."""
+    size: int
+    # (topic, positions of its samples in the block, their columns by field or the samples themselves)
+    parts: list[tuple[str, np.ndarray, dict[str, Any] | list[Sample]]]
+
+    def samples(self) -> list[Sample]:
+        block: list[Any] = [None] * self.size
+        for topic, positions, decoded in self.parts:
+            samples = decoded if isinstance(decoded, list) else _samples_of_columns(topic, decoded)
+            for position, sample in zip(positions.tolist(), samples):
+                block[position] = sample
+        return block
 
 
-def _decode_samples(topic: str, payloads: Sequence[bytes]) -> list[Sample]:
-    """The samples of a built-in sensor topic (`codec.decode_sample`'s samples), decoded field by
-    field over all the messages: each sample's arrays are rows of one array per field."""
-    message_class = _MESSAGE_CLASSES[topic]
-    messages = list(map(message_class.FromString, payloads))
+def _sample_columns(topic: str, payloads: Sequence[bytes], plugin_class: type | None) -> dict[str, Any] | list[Sample]:
+    """The field columns of a built-in sensor topic's messages (a row of an array field per
+    sample), or the decoded samples of a plugin's topic or of messages whose arrays differ in length."""
+    if plugin_class is not None:
+        return [codec.decode_plugin_sample(plugin_class, data) for data in payloads]
     columns = {}
-    for name, type_name, kind in schemas.MESSAGES[message_class.DESCRIPTOR.name]:
-        if kind == "one":
-            columns[name] = list(map(attrgetter(name), messages))
-            continue
-        width = len(getattr(messages[0], name)) if messages else 0
-        column = _repeated_column(messages, name, _ARRAY_DTYPES[type_name], (width,))
-        if column is None:        # rows of different lengths: no common array
+    for name, column in message_columns(_MESSAGE_CLASSES[topic], payloads).items():
+        columns[name] = column.matrix() if isinstance(column, Ragged) else column
+        if columns[name] is None:        # rows of different lengths: no common array
             return [codec.decode_sample(topic, data) for data in payloads]
-        columns[name] = column
+    return columns
+
+
+def _samples_of_columns(topic: str, columns: dict[str, Any]) -> list[Sample]:
     sample_class = _SAMPLE_CLASSES[topic]
-    return list(map(sample_class, *(columns[field.name] for field in fields(sample_class))))
-
-
-def _repeated_column(messages: Sequence, name: str, dtype: type, shape: tuple[int, ...]) -> np.ndarray | None:
-    """(N, *shape) array of the repeated field `name` of N messages, or None unless they hold
-    prod(shape) values each."""
-    lengths = np.fromiter(map(len, map(attrgetter(name), messages)), dtype=np.int64, count=len(messages))
-    if np.any(lengths != math.prod(shape)):
-        return None
-    values = np.fromiter(chain.from_iterable(map(attrgetter(name), messages)), dtype=dtype, count=int(lengths.sum()))
-    return values.reshape(len(messages), *shape)
+    values = [columns[field.name] for field in fields(sample_class)]
+    return list(map(sample_class, *(column if column.ndim == 2 else column.tolist() for column in values)))
 
 
 def _decode_poses(payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:

@@ -9,18 +9,14 @@ config therefore produces bit-identical estimates again.
 
 from __future__ import annotations
 
-import multiprocessing
-import signal
 import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
 
 from datasets import codec, schemas
-from datasets.reader import Recording, read_recording
+from datasets.background import in_background, streamed_in_background
+from datasets.reader import Recording, SampleBlock, read_recording
 from datasets.recorder import DatasetWriter
 from datasets.scoring import ScoringTruth, score_run
 from estimators.base import Estimate, run_estimator
@@ -31,7 +27,7 @@ from testbed.runtime.config import Config
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
 EVERY_SENSOR_TOPIC = frozenset({schemas.SENSOR_PREFIX})
 SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
-T = TypeVar("T")
+SAMPLES_PER_BLOCK = 4096
 
 
 @dataclass(frozen=True)
@@ -43,27 +39,61 @@ class ReplayResult:
 
 
 def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
-           feed: Callable[[list[Sample]], Iterable[Sample]] = iter) -> ReplayResult:
+           feed: Callable[[Iterable[Sample], float], Iterable[Sample]] | None = None) -> ReplayResult:
     """Replay `path` through `estimator_name`; with `out`, also write the run with the new
-    estimates as a dataset of its own. `feed` gives the samples to the estimator in their order
-    (`datasets.progress.with_progress` shows a progress bar meanwhile)."""
+    estimates as a dataset of its own. `feed(samples, span_s)` gives the samples to the estimator
+    in their order (`datasets.progress.with_progress` shows a progress bar over their span
+    meanwhile).
+
+    Two forked processes work beside the estimator: one decodes the samples block by block as the
+    estimator consumes them, the other reads the truth that scores the estimates."""
     started = time.perf_counter()
-    with in_background(read_scoring_truth, path) as scoring_truth:
-        recording = read_recording(path, topics=None if out is not None else sample_topics(estimator_name))
-        config = recording.config().replace(run={"estimator": estimator_name})
-        recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
-        estimator = make_estimator(estimator_name, config)
-        samples = recording.samples()
-        estimates = run_estimator(estimator, feed(samples))
+    recording = read_recording(path, topics=None if out is not None else ())
+    config = recording.config().replace(run={"estimator": estimator_name})
+    recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
+    estimator = make_estimator(estimator_name, config)
+    counted, feed = SampleCount(), feed or without_progress
+    with in_background(read_scoring_truth, path) as scoring_truth, \
+            streamed_in_background(sample_blocks, path, sample_topics(estimator_name)) as blocks:
+        estimates = run_estimator(estimator, feed(counted.samples(blocks), sensor_span_s(recording)))
         truth = scoring_truth()
     metrics = score_run(config, truth, estimates)
     sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0
     wall = time.perf_counter() - started
-    metrics.update({"estimator": estimator_name, "samples": len(samples), "estimates": len(estimates),
+    metrics.update({"estimator": estimator_name, "samples": counted.count, "estimates": len(estimates),
                     "sim_time_s": sim_time, "wall_s": wall, "realtime_factor": sim_time / wall if wall > 0 else None})
     if out is not None:
         write_replayed(recording, Path(out), config, estimates, metrics)
-    return ReplayResult(metrics, estimates, len(samples), recording.truncation_note())
+    return ReplayResult(metrics, estimates, counted.count, recording.truncation_note())
+
+
+def without_progress(samples: Iterable[Sample], span_s: float) -> Iterable[Sample]:
+    return samples
+
+
+@dataclass
+class SampleCount:
+    count: int = 0
+
+    def samples(self, blocks: Iterable[SampleBlock]) -> Iterator[Sample]:
+        """The samples of the blocks, counted as they pass."""
+        for block in blocks:
+            self.count += block.size
+            yield from block.samples()
+
+
+def sample_blocks(path: str | Path, topics: frozenset[str]) -> Iterator[SampleBlock]:
+    """The samples of `topics` in the file, in handing order, as blocks of columns."""
+    return read_recording(path, topics=topics).sample_blocks(SAMPLES_PER_BLOCK)
+
+
+def sensor_span_s(recording: Recording) -> float:
+    """s from the first to the last sensor message of the file."""
+    stats = [recording.topics[topic] for topic in recording.topics
+             if topic.startswith(schemas.SENSOR_PREFIX) and recording.topics[topic].count]
+    if not stats:
+        return 0.0
+    return (max(s.last_ns for s in stats) - min(s.first_ns for s in stats)) / codec.NS_PER_S
 
 
 def sample_topics(estimator_spec: str) -> frozenset[str]:
@@ -74,20 +104,6 @@ def sample_topics(estimator_spec: str) -> frozenset[str]:
 
 def read_scoring_truth(path: str | Path) -> ScoringTruth:
     return read_recording(path, topics=SCORING_TOPICS).scoring_truth()
-
-
-@contextmanager
-def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
-    """`function(*args)` computed in a forked process on another core while the caller goes on;
-    yields the call that waits for its value (or raises its exception). Computed inline where
-    processes cannot be forked. The process ignores SIGINT: the caller handles an interruption."""
-    if "fork" not in multiprocessing.get_all_start_methods():
-        value = function(*args)
-        yield lambda: value
-        return
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
-        yield pool.submit(function, *args).result
 
 
 def write_replayed(recording: Recording, out: Path, config: Config, estimates: list[Estimate], metrics: dict) -> None:

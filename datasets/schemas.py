@@ -34,7 +34,8 @@ _TYPES = {"double": descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
           "int64": descriptor_pb2.FieldDescriptorProto.TYPE_INT64,
           "bool": descriptor_pb2.FieldDescriptorProto.TYPE_BOOL,
           "uint32": descriptor_pb2.FieldDescriptorProto.TYPE_UINT32,
-          "string": descriptor_pb2.FieldDescriptorProto.TYPE_STRING}
+          "string": descriptor_pb2.FieldDescriptorProto.TYPE_STRING,
+          "bytes": descriptor_pb2.FieldDescriptorProto.TYPE_BYTES}
 
 # message name -> fields (name, type, kind); kind: "one" (singular), "many" (repeated), "maybe"
 # (proto3 optional). Field numbers follow the order; never reorder, only append.
@@ -88,13 +89,23 @@ def _file_proto(name: str, package: str, messages: dict[str, list[tuple[str, str
     return proto
 
 
-def _message_classes() -> dict[str, type]:
-    pool = descriptor_pool.DescriptorPool()
-    file = pool.Add(_file_descriptor())
+def _message_classes(proto: descriptor_pb2.FileDescriptorProto) -> dict[str, type]:
+    file = descriptor_pool.DescriptorPool().Add(proto)
     return {name: GetMessageClass(file.message_types_by_name[name]) for name in MESSAGES}
 
 
-CLASSES = _message_classes()
+def _packed_views() -> dict[str, type]:
+    """Each message with its repeated (packed) fields declared `bytes` under the same numbers: a
+    packed field's wire form is one length-delimited run of its values, exactly as a `bytes`
+    field's, so protobuf parses a recorded message with these classes and hands each array over
+    as its raw little-endian bytes (see `datasets.message_columns`)."""
+    views = {name: [(field, "bytes" if kind == "many" else type_name, "one" if kind == "many" else kind)
+                    for field, type_name, kind in fields] for name, fields in MESSAGES.items()}
+    return _message_classes(_file_proto(f"{PACKAGE}/packed_view.proto", f"{PACKAGE}.packed_view", views))
+
+
+CLASSES = _message_classes(_file_descriptor())
+PACKED_VIEWS = _packed_views()
 ImuSampleMsg = CLASSES["ImuSample"]
 AccelSampleMsg = CLASSES["AccelSample"]
 EncoderSampleMsg = CLASSES["EncoderSample"]

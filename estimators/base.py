@@ -13,6 +13,7 @@ import abc
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from itertools import islice
 from typing import ClassVar
 
 import numpy as np
@@ -120,6 +121,11 @@ def samples_for(estimator: Estimator, samples: Iterable[Sample]) -> Iterable[Sam
     return samples if types is None else (sample for sample in samples if isinstance(sample, types))
 
 
-def run_estimator(estimator: Estimator, samples: Iterable[Sample]) -> list[Estimate]:
-    """Feed time-ordered samples to an estimator and collect its estimates (offline replay)."""
-    return estimator.update_batch(samples_for(estimator, samples))
+def run_estimator(estimator: Estimator, samples: Iterable[Sample], batch: int = 4096) -> list[Estimate]:
+    """Feed time-ordered samples to an estimator, `batch` at a time through `update_batch`, and
+    collect its estimates (offline replay)."""
+    estimates: list[Estimate] = []
+    wanted = iter(samples_for(estimator, samples))
+    while chunk := list(islice(wanted, batch)):
+        estimates += estimator.update_batch(chunk)
+    return estimates

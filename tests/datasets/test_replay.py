@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datasets import schemas
+from datasets import codec, schemas
 from datasets.reader import read_recording
-from datasets.replay import in_background, read_scoring_truth, replay, sample_topics
+from datasets.background import in_background
+from datasets.replay import read_scoring_truth, replay, sample_topics
 from datasets.scoring import ScoringTruth, score_run
 from estimators.registry import make_estimator
 from estimators.scoring import METRIC_KEYS
@@ -112,3 +113,21 @@ def test_vqf_batch_of_fewer_samples_than_it_needs_to_start_gives_no_estimate(ekf
     config, ticks, _ = ekf_run
     first_imu = next(s for tick in ticks for s in tick.samples if isinstance(s, ImuSample))
     assert make_estimator("vqf", config.replace(run={"estimator": "vqf"})).update_batch([first_imu]) == []
+
+
+@pytest.mark.parametrize("block_size", [1, 777, None])
+def test_sample_blocks_of_any_size_give_the_samples_in_handing_order(ekf_run, block_size):
+    """Against each message decoded on its own (`codec.decode_sample`), ordered by sequence, then log time."""
+    _, _, path = ekf_run
+    recording = read_recording(path, topics=frozenset({schemas.SENSOR_PREFIX}))
+    entries = sorted((sequence, log_ns, topic, data) for topic in schemas.SENSOR_TOPICS
+                     for log_ns, sequence, data in recording.messages.get(topic, []))
+    expected = [codec.decode_sample(topic, data) for _, _, topic, data in entries]
+    blocks = list(recording.sample_blocks(block_size))
+    assert [block.size for block in blocks][:-1] == [block_size or len(expected)] * (len(blocks) - 1)
+    streamed = [sample for block in blocks for sample in block.samples()]
+    assert len(streamed) == len(expected) > 2000 and len({type(sample) for sample in expected}) >= 3
+    for a, b in zip(streamed, expected):
+        assert type(a) is type(b)
+        for x, y in zip(vars(a).values(), vars(b).values()):
+            np.testing.assert_array_equal(x, y)         # NaN where NaN

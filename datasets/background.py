@@ -1,0 +1,95 @@
+"""Work handed to a forked process on another core while the caller goes on: one value
+(`in_background`) or a stream of items (`streamed_in_background`).
+
+Where processes cannot be forked the work is done inline, with the same results. The processes
+ignore SIGINT: the caller handles an interruption, and stops them when it leaves the block.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import signal
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from multiprocessing.connection import Connection
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+_ITEM, _END, _ERROR = range(3)
+
+
+def can_fork() -> bool:
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+@contextmanager
+def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
+    """`function(*args)` computed in the background; yields the call that waits for its value (or
+    raises its exception)."""
+    if not can_fork():
+        value = function(*args)
+        yield lambda: value
+        return
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
+        yield pool.submit(function, *args).result
+
+
+@contextmanager
+def streamed_in_background(produce: Callable[..., Iterable[T]], *args: Any) -> Iterator[Iterator[T]]:
+    """The items of `produce(*args)`, made in the background and handed over through a pipe as they
+    come (so the producer runs ahead of the consumer by what the pipe holds). The iterator raises
+    the producer's exception where the producer raised it. Items must pickle cheaply: arrays, not
+    many small objects."""
+    if not can_fork():
+        yield iter(produce(*args))
+        return
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+    process = context.Process(target=_send_all, args=(sender, produce, args), daemon=True)
+    process.start()
+    sender.close()
+    try:
+        yield _received(receiver)
+    finally:
+        receiver.close()
+        if process.is_alive():
+            process.terminate()
+        process.join()
+
+
+def _send_all(sender: Connection, produce: Callable[..., Iterable[Any]], args: tuple) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        for item in produce(*args):
+            sender.send((_ITEM, item))
+        sender.send((_END, None))
+    except BrokenPipeError:
+        pass                # the consumer stopped reading
+    except BaseException as error:      # noqa: BLE001 - handed to the consumer, who raises it
+        sender.send((_ERROR, _picklable(error)))
+    finally:
+        sender.close()
+
+
+def _picklable(error: BaseException) -> BaseException:
+    try:
+        pickle.dumps(error)
+    except Exception:   # noqa: BLE001 - any failure to pickle: the message survives
+        return RuntimeError(f"{type(error).__name__}: {error}")
+    return error
+
+
+def _received(receiver: Connection) -> Iterator[Any]:
+    while True:
+        try:
+            kind, value = receiver.recv()
+        except EOFError:
+            raise RuntimeError("the background process stopped before handing over all its items") from None
+        if kind == _END:
+            return
+        if kind == _ERROR:
+            raise value
+        yield value
