@@ -100,8 +100,9 @@ class Recording:
         return heightmap_store.restored_config(config, self.attachments, self.path)
 
     def config(self) -> Config:
+        """The recorded config; keys added to the testbed since the recording take their defaults."""
         try:
-            return config_module.from_dict(self.config_dict())
+            return config_module.load(base=self.config_dict())
         except ConfigError as error:
             raise UserError(f"{self.path}: its recorded config does not fit this testbed version ({error})") from None
 

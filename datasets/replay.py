@@ -51,10 +51,10 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
     recording = read_recording(path, topics=None if out is not None else ())
     config = recording.config().replace(run={"estimator": estimator_name})
     recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
-    estimator = make_estimator(estimator_name, config)
     counted, feed = SampleCount(), feed or without_progress
     with in_background(read_scoring_truth, path) as scoring_truth, \
             streamed_in_background(sample_blocks, path, sample_topics(estimator_name)) as blocks:
+        estimator = make_estimator(estimator_name, config)      # (while the file is read)
         estimates = run_estimator(estimator, feed(counted.samples(blocks), sensor_span_s(recording)))
         truth = scoring_truth()
     metrics = score_run(config, truth, estimates)

@@ -3,6 +3,8 @@ for bit and scores like the live run; another estimator gets a dataset of its ow
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -131,3 +133,22 @@ def test_sample_blocks_of_any_size_give_the_samples_in_handing_order(ekf_run, bl
         assert type(a) is type(b)
         for x, y in zip(vars(a).values(), vars(b).values()):
             np.testing.assert_array_equal(x, y)         # NaN where NaN
+
+
+def _with_recorded_config(recording, change):
+    config = json.loads(recording.metadata["config"]["json"])
+    change(config)
+    recording.metadata["config"]["json"] = json.dumps(config)
+    return recording
+
+
+def test_a_recorded_config_without_a_newer_key_takes_its_default(ekf_run):
+    _, _, path = ekf_run
+    recording = read_recording(path, topics=())
+    expected = recording.config()
+    older = _with_recorded_config(read_recording(path, topics=()),
+                                  lambda config: (config["terrain"].pop("course_start"), config["posture"].pop("max_swing_height")))
+    assert older.config() == expected       # (the recorded values were the defaults)
+    newer = _with_recorded_config(read_recording(path, topics=()), lambda config: config["terrain"].update(bumps=1.0))
+    with pytest.raises(UserError, match="does not fit this testbed version.*unknown config key 'terrain.bumps'"):
+        newer.config()
