@@ -27,6 +27,7 @@ from estimators.gating import chi2_quantile
 from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
 
+SAME_TIME = 1e-9         # s: the datasets' time resolution; sample and step times differ by rounding within it
 METRIC_KEYS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
                "anees_tilt")
 
@@ -68,8 +69,13 @@ def estimate_arrays(estimates: Sequence[Estimate]) -> EstimateArrays:
 
 
 def roll_pitch_yaw(rotations: np.ndarray) -> np.ndarray:
-    """(N, 3) ZYX (roll, pitch, yaw) of world_from_body matrices."""
-    return Rotation.from_matrix(rotations).as_euler("ZYX")[:, ::-1]
+    """(N, 3) ZYX (roll, pitch, yaw) of world_from_body matrices R = Rz(yaw) Ry(pitch) Rx(roll),
+    read off the matrices' entries (scipy's `as_euler` would first turn every matrix into a
+    quaternion, which costs more than the scoring around it)."""
+    roll = np.arctan2(rotations[:, 2, 1], rotations[:, 2, 2])
+    pitch = np.arctan2(-rotations[:, 2, 0], np.hypot(rotations[:, 2, 1], rotations[:, 2, 2]))
+    yaw = np.arctan2(rotations[:, 1, 0], rotations[:, 0, 0])
+    return np.column_stack([roll, pitch, yaw])
 
 
 def up_in_body(roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
@@ -83,9 +89,18 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def truth_at(t: np.ndarray, truth_t: np.ndarray, truth_rotation: np.ndarray) -> np.ndarray:
-    """True rotations at the estimate times (slerp between truth samples)."""
+    """True rotations at the estimate times: the truth's own at its steps (within SAME_TIME),
+    slerp between them."""
     t = np.clip(t, truth_t[0], truth_t[-1])
-    return Slerp(truth_t, Rotation.from_matrix(truth_rotation))(t).as_matrix()
+    right = np.minimum(np.searchsorted(truth_t, t), len(truth_t) - 1)
+    left = np.maximum(right - 1, 0)
+    index = np.where(np.abs(truth_t[left] - t) < np.abs(truth_t[right] - t), left, right)
+    at_a_step = np.abs(truth_t[index] - t) <= SAME_TIME
+    rotations = truth_rotation[index]
+    if not at_a_step.all():
+        between = ~at_a_step
+        rotations[between] = Slerp(truth_t, Rotation.from_matrix(truth_rotation))(t[between]).as_matrix()
+    return rotations
 
 
 def rms(values: np.ndarray) -> float | None:

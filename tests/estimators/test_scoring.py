@@ -2,13 +2,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
 from estimators.base import Estimate
 from estimators.gating import chi2_quantile
 from estimators.scoring import (METRIC_KEYS, EstimateArrays, TerrainTruth, anees_bounds, estimate_arrays,
-                                roll_pitch_yaw, score, support_plane_truth)
+                                roll_pitch_yaw, score, support_plane_truth, truth_at)
 from estimators.terrain import fit_plane, heading_terrain_angles, slopes_and_height
 
 T = np.arange(3000) / 1000.0
@@ -118,3 +118,21 @@ def test_support_plane_truth_equals_a_per_step_fit():
 @pytest.mark.parametrize("probability, dof", [(0.025, 2), (0.975, 2), (0.99, 3), (0.5, 20), (0.999, 1)])
 def test_chi2_quantile_is_the_chi_square_ppf(probability, dof):
     assert chi2_quantile(probability, dof) == pytest.approx(chi2.ppf(probability, dof), rel=1e-12)
+
+
+def test_euler_angles_of_any_rotation_match_scipys():
+    rotations = Rotation.random(2000, random_state=np.random.default_rng(5))
+    np.testing.assert_allclose(roll_pitch_yaw(rotations.as_matrix()), rotations.as_euler("ZYX")[:, ::-1],
+                               rtol=0, atol=1e-9)
+
+
+def test_truth_at_a_step_is_the_steps_own_and_slerp_between():
+    rng = np.random.default_rng(8)
+    times = np.concatenate([T[[10, 500]] + rng.uniform(-1e-10, 1e-10, 2),        # at a step, within rounding
+                            T[[20, 1500]] + 0.0004, [-1.0, 9.0]])                     # between steps; outside
+    rotations = truth_at(times, T, TRUTH)
+    np.testing.assert_array_equal(rotations[:2], TRUTH[[10, 500]])
+    expected = Slerp(T, Rotation.from_matrix(TRUTH))(T[[20, 1500]] + 0.0004).as_matrix()
+    np.testing.assert_allclose(rotations[2:4], expected, rtol=0, atol=1e-12)
+    assert not np.allclose(rotations[2], TRUTH[20]) and not np.allclose(rotations[2], TRUTH[21])
+    np.testing.assert_allclose(rotations[4:], TRUTH[[0, -1]], rtol=0, atol=1e-12)
