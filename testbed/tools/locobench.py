@@ -20,7 +20,7 @@ import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -37,6 +37,7 @@ CACHE = Path(platformdirs.user_cache_dir("hexapod-testbed")) / "locobench"
 SIMULATION_SOURCES = ("testbed", "sensors", "estimators")      # their source is part of a case's cache key
 NOT_SIMULATION = ("tools",)                                    # testbed/tools: reporting, not simulation
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+WAKE_PERIOD = 0.5               # s, the longest the benchmark's process waits without looking at Ctrl-C
 BENCH_SEED = 21_2026            # root of every case's Generator; not a seed anything was tuned on
 
 COURSES, LONG = "courses", "long"
@@ -64,7 +65,8 @@ GAP = (0.4, 0.6)                # level ground between two features
 COURSE_START = -0.5             # m: the course's first segment starts here
 LEAD = 0.8                      # m of level ground first: the first feature starts 0.3 m ahead of the body
 TARGET_BEYOND = 0.5             # m: the target lies this far beyond the last feature, every foot past it
-WIDTH = 1.5                     # m: the terrain spans y = -WIDTH ... WIDTH
+WIDTH = 1.5                     # m: the courses span y = -WIDTH ... WIDTH
+LONG_WIDTH = 0.25               # of the length: the long walks' ground is this wide to each side (no heading control)
 DURATION_MARGIN = 1.25          # course runs last the walk at the commanded speed times this, plus 3 s
 LONG_DURATION = 600.0           # s
 LONG_SCENARIOS = {              # name: (terrain, speed m/s, tripod period s)
@@ -242,17 +244,18 @@ def long_case(name: str, duration: float = LONG_DURATION) -> Case:
     rng = generator(LONG, name)
     seed = int(rng.integers(2**31))
     reach = round(speed * duration + 2.0, 1)         # m walked, and the feet ahead of the body
+    side = round(max(WIDTH, LONG_WIDTH * reach), 1)
     overrides: dict[str, Any] = {
         "run": {"terrain": terrain, "gait": "tripod", "contact": "compliant", "seed": seed, "duration": duration},
         "gait": {"speed": speed, "tripod_period": period},
         # rough_cell is unused here, but the config counts extent / rough_cell^2 blocks for any terrain
-        "terrain": {"extent": [-2.0, reach, -WIDTH, WIDTH], "rough_cell": 0.5}}
-    description = f"flat, {reach + 2.0:.0f} m long"
+        "terrain": {"extent": [-2.0, reach, -side, side], "rough_cell": 2.0}}
+    description = f"flat, {reach + 2.0:.0f} m x {2 * side:.0f} m"
     if terrain == "course":
         segments = ramp_course(rng, reach - 1.0)
         end = COURSE_START + sum(segment_length(s) for s in segments)
         overrides["terrain"].update(course=segments, course_start=COURSE_START,
-                                    extent=[-2.0, round(end + 1.0, 3), -WIDTH, WIDTH])
+                                    extent=[-2.0, round(end + 1.0, 3), -side, side])
         ramps = [s["angle_deg"] for s in segments if s["kind"] == "ramp"]
         description = (f"{len(ramps)} ramps of {min(abs(a) for a in ramps):.1f}-{max(abs(a) for a in ramps):.1f}°, "
                        f"up and down, over {end - COURSE_START:.0f} m")
@@ -342,14 +345,18 @@ def _run(todo: Sequence[Case], cache_dir: Path, workers: int, progress: Callable
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint)
     try:
         futures = {pool.submit(simulate, case.config, str(metrics_path(case, cache_dir))): case for case in order}
-        for future in as_completed(futures):
-            case = futures[future]
-            try:
-                future.result()
-            except Exception as error:      # noqa: BLE001 - one case's failure is reported, the others go on
-                failures[case.label] = f"{type(error).__name__}: {error}"
-            if progress:
-                progress(case)
+        pending = set(futures)
+        while pending:
+            # A timeout: the main thread wakes to take a Ctrl-C that the OS handed to another thread.
+            finished, pending = wait(pending, timeout=WAKE_PERIOD, return_when=FIRST_COMPLETED)
+            for future in finished:
+                case = futures[future]
+                try:
+                    future.result()
+                except Exception as error:      # noqa: BLE001 - one case's failure is reported, the others go on
+                    failures[case.label] = f"{type(error).__name__}: {error}"
+                if progress:
+                    progress(case)
     except BaseException:       # Ctrl-C: the runs in flight stop now; every finished one is in the cache
         pool.shutdown(wait=False, cancel_futures=True)
         for process in multiprocessing.active_children():

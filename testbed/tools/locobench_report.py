@@ -186,14 +186,15 @@ def courses_table(rows: Sequence[ScenarioRow]) -> str:
 
 def long_table(results: Sequence[CaseResult]) -> str:
     lines = ["| walk | terrain | duration (s) | outcome | tilt RMS (°) | tilt max (°) | height error RMS (mm) | "
-             "IK-limited ticks | distance (m) |", "|---|---|---|---|---|---|---|---|---|"]
+             "IK-limited ticks | distance (m) | lateral drift (m) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         if r.case.group == LONG:
             height = value(r, "height_error_rms_m")
             lines.append(f"| {r.case.scenario} | {r.case.terrain} | {value(r, 'sim_time_s') or 0:.0f} of "
                          f"{r.case.config['run']['duration']:g} | {outcome(r)} | {_number(value(r, 'tilt_rms_deg'), 3)} | "
                          f"{_number(value(r, 'tilt_max_deg'), 3)} | {_number(height and height * 1e3, 2)} | "
-                         f"{value(r, 'ik_limited_ticks')} | {_number(value(r, 'distance_m'), 1)} |")
+                         f"{value(r, 'ik_limited_ticks')} | {_number(value(r, 'distance_m'), 1)} | "
+                         f"{_number(value(r, 'lateral_drift_m'), 2)} |")
     return "\n".join(lines)
 
 
@@ -266,7 +267,9 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
             f"![Courses: tilt, height error and target error per run]({image_folder}/{COURSES_FIGURE})"]
     if any(r.group == LONG for r in rows):
         parts += ["### Long walks",
-                  "Tripod gait, compliant contact; at 0.2 m/s the tripod period is 0.5 s (the same 5 cm stride).",
+                  "Tripod gait, compliant contact, a constant speed command (no target, so no heading control: the "
+                  "ground is a quarter of its length wide to each side); at 0.2 m/s the tripod period is 0.5 s (the "
+                  "same 5 cm stride). Lateral drift: sideways from the start heading at the end.",
                   long_table(result.results),
                   f"![Long walks: tilt, height error and IK-limited ticks]({image_folder}/{LONG_FIGURE})"]
     failures = failures_text(result.results)
@@ -277,7 +280,7 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
 
 
 RUN_COLUMNS = ("fell", "left_terrain", "error", "tilt_rms_deg", "tilt_max_deg", "height_error_rms_m",
-               "ik_limited_ticks", "target_error_m", "distance_m", "sim_time_s", "min_stability_margin_m",
+               "ik_limited_ticks", "target_error_m", "distance_m", "lateral_drift_m", "sim_time_s", "min_stability_margin_m",
                "roll_rmse_deg", "pitch_rmse_deg", "realtime_factor")
 
 

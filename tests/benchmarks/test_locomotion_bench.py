@@ -146,6 +146,17 @@ def test_locobench_command_rejects_bad_input_in_one_line(arguments, message, tmp
     assert not out.exists() and not cache.exists()
 
 
+@pytest.mark.parametrize("option", ["--out", "--cache"])
+def test_locobench_command_refuses_a_folder_under_a_file(option, tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    folders = {"--out": tmp_path / "out", "--cache": tmp_path / "cache", option: blocker / "sub"}
+    assert main(["locobench", "--seeds", "1", "--long", "none", *[str(x) for pair in folders.items() for x in pair]]) == 2
+    error = capsys.readouterr().err
+    assert "under a file" in error and error.count("\n") == 1
+    assert blocker.read_text() == "not a folder" and not (tmp_path / "out").exists()
+
+
 SMOKE = LocoSet(seeds=1, layouts=("B",), gaits=("tripod",), contacts=("compliant",),
                 long_scenarios=("flat 0.1 m/s",), long_duration=10.0, max_duration=8.0)
 
@@ -183,6 +194,30 @@ def test_report_of_real_runs_from_their_metrics_json(tmp_path):
 
     again = locobench.run_cases(SMOKE, cache, workers=2)
     assert again.simulated == 0 and [r.metrics for r in again.results] == [r.metrics for r in first.results]
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_workers_and_caches_no_interrupted_run(tmp_path):
+    import signal
+    import time
+
+    import psutil
+
+    from tests.reliability.cli_process import finish, start, wait_for
+
+    cache = tmp_path / "cache"
+    process = start("locobench", "--seeds", "1", "--layouts", "A", "--gaits", "tripod", "--long", "none",
+                    "--cache", str(cache), "--out", str(tmp_path / "out"))
+    parent = psutil.Process(process.pid)
+    wait_for(lambda: len([p for p in parent.children() if "spawn_main" in " ".join(p.cmdline())]) == 2, 60, 0.1)
+    time.sleep(3.0)                         # both runs under way
+    workers = parent.children(recursive=True)
+    process.send_signal(signal.SIGINT)
+    status, _, err = finish(process, timeout=30)
+    assert status == 130 and err.rstrip().endswith("testbed: interrupted") and "Traceback" not in err
+    assert not list(cache.glob("*.json")) and not (tmp_path / "out" / "locomotion.md").exists()
+    psutil.wait_procs(workers, timeout=10)
+    assert not [p for p in workers if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
 
 
 def reduced_set_from_environment() -> LocoSet:
