@@ -206,6 +206,37 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
+def command_line(loco_set: locobench.LocoSet) -> str:
+    """The `testbed locobench` options that run `loco_set` into docs/."""
+    full, words = locobench.LocoSet(), ["testbed locobench"]
+    for option, mine, default in (("--seeds", loco_set.seeds, full.seeds), ("--layouts", loco_set.layouts, full.layouts),
+                                  ("--gaits", loco_set.gaits, full.gaits), ("--contacts", loco_set.contacts, full.contacts),
+                                  ("--long", loco_set.long_scenarios, full.long_scenarios),
+                                  ("--long-duration", loco_set.long_duration, full.long_duration),
+                                  ("--max-duration", loco_set.max_duration, full.max_duration)):
+        if mine != default:
+            text = ",".join(mine) if isinstance(mine, tuple) else f"{mine:g}"
+            words.append(f"{option} {text or 'none'}" if " " not in text else f"{option} '{text}'")
+    return " ".join(words + ["--docs"])
+
+
+def estimated_full_wall_s(results: Sequence[CaseResult], workers: int = 2) -> float | None:
+    """Wall time of the full set on `workers` processes, from these runs' wall time per simulated
+    second for each gait and contact model; None when a gait or contact model of the full set is missing."""
+    rates: dict[tuple[str, str], list[float]] = {}
+    for r in results:
+        if value(r, "sim_time_s") and value(r, "wall_s"):
+            run = r.case.config["run"]
+            rates.setdefault((run["gait"], run["contact"]), []).append(value(r, "wall_s") / value(r, "sim_time_s"))
+    total = 0.0
+    for case in locobench.LocoSet().cases():
+        key = (case.config["run"]["gait"], case.config["run"]["contact"])
+        if key not in rates:
+            return None
+        total += case.config["run"]["duration"] * float(np.median(rates[key]))
+    return total / workers
+
+
 def set_description(result: LocoResult) -> str:
     s = result.loco_set
     label = "The full set" if s.full else "**A reduced set** (not the full benchmark)"
@@ -230,6 +261,8 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
     rows = scenario_rows(result.results)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     simulated = sum(value(r, "sim_time_s") or 0.0 for r in result.results)
+    run_wall = sum(value(r, "wall_s") or 0.0 for r in result.results)
+    full_s = None if result.loco_set.full else estimated_full_wall_s(result.results, result.workers)
     parts = [
         f"{set_description(result)} Every run: the EKF as the only attitude source and the posture controller; "
         f"true tilt (from vertical) and height error (body height above the ground under its centre minus the "
@@ -241,8 +274,10 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
         f"setting anything was tuned on. Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC on "
         f"{platform.machine()} with {os.cpu_count()} CPUs (load average {result.load_before:.1f} before, "
         f"{load:.1f} after), {result.workers} worker processes, in {result.wall_s / 60:.1f} min "
-        f"({len(result.results)} runs, {simulated / 60:.0f} min simulated; {result.simulated} run now, the rest "
-        f"from the metrics cache). Regenerate: `testbed locobench --docs` (the full set; `make bench` runs it too).",
+        f"({len(result.results)} runs, {simulated / 60:.0f} min simulated in {run_wall / 60:.0f} min of the runs' "
+        f"own wall time; {result.simulated} run now, the rest from the metrics cache). This set: "
+        f"`{command_line(result.loco_set)}`; the full set: `testbed locobench --docs` or `make bench`"
+        + (f", about {full_s / 60:.0f} min on 2 worker processes at the speed of these runs." if full_s else "."),
         "### Targets (issue 21)",
         "Met: every run of the set meets it (a reduced set says nothing of the full one). The metrics hold the "
         "tilt max of a whole run, not of each edge crossing: the course tilt target is checked on the whole run, "
@@ -392,16 +427,18 @@ def long_figure(results: Sequence[CaseResult]):
                 axes[0, 0].hlines(limit, k + offset - 0.19, k + offset + 0.19, color="k", ls="--", lw=1.2)
     axes[0, 0].set_ylabel("true tilt (°); dashed: target")
     axes[0, 0].legend(fontsize=8, loc="upper left")
-    axes[0, 1].bar(x, [(value(r, "height_error_rms_m") or 0.0) * 1e3 for r in mine], 0.5, color="C2")
+    heights = [(value(r, "height_error_rms_m") or 0.0) * 1e3 for r in mine]
+    axes[0, 1].bar(x, heights, 0.5, color="C2")
     axes[0, 1].axhline(COURSE_HEIGHT_RMS * 1e3, color="k", ls="--", lw=0.8)
+    axes[0, 1].set_ylim(0, 1.2 * max(*heights, COURSE_HEIGHT_RMS * 1e3))
     axes[0, 1].set_ylabel("height error RMS (mm); dashed: course target")
     ticks = [value(r, "ik_limited_ticks") or 0 for r in mine]
     axes[0, 2].bar(x, ticks, 0.5, color="C4")
     axes[0, 2].set_ylim(0, max(1.0, 1.15 * max(ticks)))
     axes[0, 2].set_ylabel("IK-limited ticks (target on ramps: 0)")
-    for axis in axes[0]:
+    for axis, fmt in zip(axes[0], ("%.3g", "%.3g", "%d")):
         for container in axis.containers:
-            axis.bar_label(container, fmt="%.3g", fontsize=7)
+            axis.bar_label(container, fmt=fmt, fontsize=7)
         labels = [f"{r.case.scenario}\n{value(r, 'sim_time_s') or 0:.0f} s, {outcome(r)}" for r in mine]
         axis.set_xticks(x, labels, fontsize=8)
         axis.grid(alpha=0.3, axis="y")
