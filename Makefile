@@ -23,7 +23,9 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 # The full benchmarks (estimators: 4 terrains x 10 seeds x 20 s, recorded on 2 processes and cached
-# in .cache/bench); docs/results.md is assembled from every benchmark's fragment at the end.
+# in .cache/bench; locomotion: 183 runs on 2 processes, about 100 min, metrics cached in
+# ~/.cache/hexapod-testbed/locobench, a reduced set with LOCOBENCH_SEEDS=N LOCOBENCH_LONG_DURATION=S ...);
+# docs/results.md is assembled from every benchmark's fragment at the end.
 bench: $(STAMP)
 	$(BIN)/python -m pytest -q -m bench tests/benchmarks; status=$$?; \
 		$(BIN)/python -m testbed.tools.bench_report; exit $$status

@@ -37,6 +37,7 @@ SUBCOMMANDS = {
               "a grid of runs (terrains x seeds x estimators x sensor presets): one MCAP per run and an index"),
     "profile": ("testbed.tools.profile", "time per simulated step of each stage of the run loop"),
     "bench": ("testbed.tools.bench_cli", "the estimator benchmarks: record walks, replay every estimator, report"),
+    "locobench": ("testbed.tools.locobench_cli", "the locomotion benchmark: courses, gaits, contact models, long walks"),
 }
 # The named parts of a run, by option: (kind, entry point group). Names are listed and checked from
 # the entry points alone (`Registry.check_spec` imports nothing), before the config loads the parts.
