@@ -100,8 +100,6 @@ def bench_set_from_args(args: argparse.Namespace) -> BenchSet:
         raise UserError(f"--first-seed must be 0 ... 2^62, got {args.first_seed}")
     if not (math.isfinite(args.duration) and 2.0 <= args.duration <= 3600.0):
         raise UserError(f"--duration must be at least 2 s (the first second is not scored), got {args.duration}")
-    if hasattr(args, "workers") and not 1 <= args.workers <= 1024:
-        raise UserError(f"--workers must be 1 ... 1024, got {args.workers}")
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
     fault_estimators = tuple(name for name in estimators if name != "ukf") or estimators
     return BenchSet(terrains, contacts, grades, seeds, args.duration, estimators,
@@ -135,6 +133,8 @@ def bench_set_from_text(text: str) -> BenchSet:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     bench_set = bench_set_from_args(args)
+    if not 1 <= args.workers <= 1024:
+        raise UserError(f"--workers must be 1 ... 1024, got {args.workers}")
     if args.out is None and not args.docs:
         raise UserError("give --out DIR, --docs or both: where to write the results")
     base = Base(config_module.read_toml(args.config) if args.config is not None else None)
