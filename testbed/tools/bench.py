@@ -599,5 +599,5 @@ def fault_checks(faulty: Row, reference: Row) -> list[Check]:
     if faulty.anees_tilt is not None:
         low, high = faulty.anees_bounds
         checks.append(Check("faults", at, "ANEES inside the 95 % bounds", low <= faulty.anees_tilt <= high,
-                            f"{faulty.anees_tilt:.3g} in [{low:.2f}, {high:.2f}]"))
+                            f"{faulty.anees_tilt:.{2 if faulty.anees_tilt < 100 else 0}f} in [{low:.2f}, {high:.2f}]"))
     return checks

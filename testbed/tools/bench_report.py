@@ -31,6 +31,7 @@ METRIC_COLUMNS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slop
 COLORS = {"ekf": "C3", "ukf": "C1", "complementary": "C7", "madgwick": "C2", "mahony": "C4", "vqf": "C0"}
 SCORING_SKIP = 1.0     # s, the first second is not scored (estimators.scoring.score's default skip)
 RANGE_PERCENTILE = 99.0    # the error plots' y range holds this percentile of each estimator's scored |error|
+RANGE_RMS_FACTOR = 3.0     # ... of the estimators whose RMS error is at most this many times the lowest
 
 
 # --- files ---------------------------------------------------------------------------------------
@@ -99,7 +100,7 @@ def _number(value: float | None, digits: int = 3, scale: float = 1.0) -> str:
 
 
 def _anees(value: float | None, bounds: tuple[float, float] | None) -> str:
-    return "–" if value is None else f"{value:.3g} ({bounds[0]:.2f}–{bounds[1]:.2f})"
+    return "–" if value is None else f"{value:.{2 if value < 100 else 0}f} ({bounds[0]:.2f}–{bounds[1]:.2f})"
 
 
 def _table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str:
@@ -389,8 +390,9 @@ def _plotted_walks(replays: Sequence[ReplayResult], terrain: str) -> list[Replay
 def error_figure(replays: Sequence[ReplayResult], terrain: str):
     """Roll and pitch errors over time of one walk per contact (the lowest seed with series, the
     default grade): each estimator once, the EKF with its 3-sigma band, one legend beside the axes.
-    The y range holds RANGE_PERCENTILE of every estimator's scored errors (after the first second),
-    so the sub-degree differences show; the start-up and the wider bands are cut off at it. None
+    The y range holds RANGE_PERCENTILE of the scored errors (after the first second) of the
+    estimators near the best (`_error_range`), so the sub-degree differences show; the start-up,
+    the wider bands and the far worse filters are cut off at it. None
     without series of that terrain."""
     walks = _plotted_walks(replays, terrain)
     if not walks:
@@ -411,7 +413,8 @@ def error_figure(replays: Sequence[ReplayResult], terrain: str):
         axes[0, column].set_title(f"{terrain}, {contact}, {mine[0].scenario.grade} IMU, seed {mine[0].scenario.seed}",
                                   fontsize=10)
         axes[1, column].set_xlabel("time (s)")
-    figure.suptitle("estimate − truth (dotted: the first second, not scored)", fontsize=10)
+    figure.suptitle(f"estimate − truth (dotted: the first second, not scored); y range: the estimators within "
+                    f"{RANGE_RMS_FACTOR:g}× the lowest RMS error", fontsize=10)
     figure.legend(list(handles.values()), list(handles), loc="outside right center", fontsize=8)
     return figure
 
@@ -429,11 +432,15 @@ def _plot_error(axis, replay: ReplayResult, row: int) -> dict:
 
 
 def _error_range(replays: Sequence[ReplayResult], row: int) -> tuple[float, float]:
-    spread = [0.0]
-    for replay in replays:
-        scored = np.abs(np.degrees(replay.series.error[replay.series.t >= SCORING_SKIP, row]))
-        if scored.size:
-            spread.append(float(np.nanpercentile(scored, RANGE_PERCENTILE)))
+    """Symmetric limits holding RANGE_PERCENTILE of the scored errors of every estimator whose RMS
+    error is within RANGE_RMS_FACTOR of the lowest: a filter degrees off does not squash the others."""
+    scored = [np.abs(np.degrees(r.series.error[r.series.t >= SCORING_SKIP, row])) for r in replays]
+    scored = [errors[np.isfinite(errors)] for errors in scored]
+    rms = [float(np.sqrt(np.mean(errors ** 2))) for errors in scored if errors.size]
+    if not rms:
+        return -1.0, 1.0
+    spread = [float(np.percentile(errors, RANGE_PERCENTILE)) for errors in scored
+              if errors.size and np.sqrt(np.mean(errors ** 2)) <= RANGE_RMS_FACTOR * min(rms)]
     limit = 1.15 * max(spread) or 1.0
     return -limit, limit
 
@@ -459,7 +466,7 @@ def plot_rmse(rows: Sequence[Row], path: Path) -> None:
                 values = [table.get((t, contact, grade, name), np.nan) for t in terrains]
                 axis.bar(np.arange(len(terrains)) + (k - (len(names) - 1) / 2) * width, values, width,
                          label=name, color=COLORS.get(name))
-            axis.axhline(rmse_target(grade), color="k", lw=0.8, ls="--", label="ekf limit")
+            axis.axhline(rmse_target(grade), color="k", lw=0.8, ls="--", label="ekf limit (each axis)")
             axis.set_xticks(np.arange(len(terrains)), terrains, fontsize=8)
             axis.set_yscale("log")
             axis.set_ylim(bottom=0.5 * low)
