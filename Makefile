@@ -24,7 +24,8 @@ test: $(STAMP)
 
 # The full benchmarks. Estimators: 5 terrains x 2 contacts x 3 IMU grades x 10 seeds x 30 s, the quad
 # accelerometer array and the gyro faults (380 walks, recorded on 2 processes and cached in the user's
-# cache folder; about 1.6 h on 2 idle cores, 11,400 CPU s, a third of it the UKF's replays).
+# cache folder; about 2 h on 2 idle cores, some 15,000 CPU s, a quarter of it the UKF's replays; one seed
+# of it took 46 min on this machine under a load of 6).
 # BENCH_ARGS narrows the estimators' set with the options of `testbed bench`, e.g.
 # `make bench BENCH_ARGS="--seeds 1"`. docs/results.md is assembled from every benchmark's fragment at the end.
 bench: $(STAMP)
