@@ -22,9 +22,12 @@ run: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# The full benchmarks (estimators: 4 terrains x 10 seeds x 20 s, recorded on 2 processes and cached
-# in .cache/bench; locomotion: 183 runs on 2 processes, about 100 min, metrics cached in
-# ~/.cache/hexapod-testbed/locobench, a reduced set with LOCOBENCH_SEEDS=N LOCOBENCH_LONG_DURATION=S ...);
+# The full benchmarks. Estimators: 5 terrains x 2 contacts x 3 IMU grades x 10 seeds x 30 s, the quad
+# accelerometer array and the gyro faults (380 walks, recorded on 2 processes and cached in the user's
+# cache folder; about 2 h on 2 idle cores, some 15,000 CPU s, a quarter of it the UKF's replays).
+# BENCH_ARGS narrows the estimators' set with the options of `testbed bench`, e.g.
+# `make bench BENCH_ARGS="--seeds 1"`. Locomotion: 183 runs on 2 processes, about 100 min, metrics cached
+# in ~/.cache/hexapod-testbed/locobench; a reduced set with LOCOBENCH_SEEDS=N LOCOBENCH_LONG_DURATION=S ...
 # docs/results.md is assembled from every benchmark's fragment at the end.
 bench: $(STAMP)
 	$(BIN)/python -m pytest -q -m bench tests/benchmarks; status=$$?; \
