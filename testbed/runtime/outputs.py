@@ -49,9 +49,10 @@ def _shown(path: Path) -> str:
 
 
 def write_atomically(path: Path, data: bytes) -> None:
-    """`data` into a temporary file beside `path`, renamed over it when complete; nothing is left
-    behind if the write fails (a full disk)."""
+    """`data` into a temporary file beside `path` (its folder created if missing), renamed over it
+    when complete; nothing is left behind if the write fails (a full disk)."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
         with open(temporary, "wb") as stream:

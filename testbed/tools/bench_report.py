@@ -14,7 +14,6 @@ import io
 import json
 import os
 import platform
-import tempfile
 from collections.abc import Sequence
 from dataclasses import asdict
 from datetime import datetime, timezone
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.runtime.outputs import write_atomically
 from testbed.tools.bench import (BASELINES, FAULT_RATIO_TARGET, POSE_KEYS, BenchResult,
                                  BenchSet, Check, ReplayResult, Row, rmse_target, runs_text, summary_rows, where)
 
@@ -35,18 +35,6 @@ RANGE_RMS_FACTOR = 3.0     # ... of the estimators whose RMS error is at most th
 
 
 # --- files ---------------------------------------------------------------------------------------
-
-def _write_atomically(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(data)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
 
 def run_rows(replays: Sequence[ReplayResult]) -> list[dict]:
     """One row per replay: the scenario, the estimator, its metrics and its cost."""
@@ -243,6 +231,11 @@ def fault_targets_table(checks: Sequence[Check]) -> str:
                    "inside"], lines)
 
 
+def checks_table(checks: Sequence[Check]) -> str:
+    """Every target, what was measured and whether it is met."""
+    return _table(("target", "measured", "met"), [(c.what, c.detail, "yes" if c.passed else "**no**") for c in checks])
+
+
 def checks_summary(checks: Sequence[Check]) -> str:
     measured = [c for c in checks if c.passed is not None]
     met = sum(c.passed for c in measured)
@@ -365,7 +358,7 @@ def _save(figure, path: Path) -> None:
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=110)
     plt.close(figure)
-    _write_atomically(path, buffer.getvalue())
+    write_atomically(path, buffer.getvalue())
 
 
 def plot_errors(replays: Sequence[ReplayResult], terrain: str, path: Path) -> None:
@@ -537,17 +530,17 @@ def write(result: BenchResult, checks: Sequence[Check], folder: Path) -> None:
     """results.md, results.csv, results.json and the plots, in `folder`."""
     folder = Path(folder)
     write_plots(result, folder)
-    _write_atomically(folder / "results.csv", csv_text(run_rows(result.replays)).encode())
-    _write_atomically(folder / "results.json", json_text(result, checks).encode())
-    _write_atomically(folder / "results.md", ("# Estimator benchmark\n\n" + markdown(result, checks, ".")).encode())
+    write_atomically(folder / "results.csv", csv_text(run_rows(result.replays)).encode())
+    write_atomically(folder / "results.json", json_text(result, checks).encode())
+    write_atomically(folder / "results.md", ("# Estimator benchmark\n\n" + markdown(result, checks, ".")).encode())
 
 
 def write_docs(result: BenchResult, checks: Sequence[Check], docs: Path = DOCS) -> None:
     """docs/results/estimators.{md,csv,json}, docs/img/estimators_*.png, then docs/results.md."""
     write_plots(result, docs / "img")
-    _write_atomically(docs / "results" / "estimators.csv", csv_text(run_rows(result.replays)).encode())
-    _write_atomically(docs / "results" / "estimators.json", json_text(result, checks).encode())
-    _write_atomically(docs / "results" / ESTIMATORS_FRAGMENT,
+    write_atomically(docs / "results" / "estimators.csv", csv_text(run_rows(result.replays)).encode())
+    write_atomically(docs / "results" / "estimators.json", json_text(result, checks).encode())
+    write_atomically(docs / "results" / ESTIMATORS_FRAGMENT,
                       ("## Estimators\n\n" + markdown(result, checks, "img")).encode())
     write_results_page(docs)
 
@@ -557,7 +550,7 @@ ESTIMATORS_FRAGMENT = "estimators.md"
 
 def write_fragment(name: str, text: str, docs: Path = DOCS) -> None:
     """A benchmark's section of docs/results.md: docs/results/<name>, included by `results_page`."""
-    _write_atomically(docs / "results" / name, text.encode())
+    write_atomically(docs / "results" / name, text.encode())
 
 
 def results_page(docs: Path = DOCS) -> str:
@@ -573,7 +566,7 @@ def results_page(docs: Path = DOCS) -> str:
 
 
 def write_results_page(docs: Path = DOCS) -> None:
-    _write_atomically(docs / "results.md", results_page(docs).encode())
+    write_atomically(docs / "results.md", results_page(docs).encode())
 
 
 if __name__ == "__main__":

@@ -19,9 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from testbed.tools import locobench
-from testbed.tools.bench import Check
-from testbed.tools.bench_report import DOCS, _write_atomically, checks_table, csv_text, write_results_page
+from testbed.runtime.outputs import write_atomically
+from testbed.tools.bench_report import DOCS, checks_table, csv_text, write_results_page
 from testbed.tools.locobench import COURSES, LONG, CaseResult, LocoResult
+
+
+@dataclass(frozen=True)
+class Target:
+    """One of issue 21's targets: what, whether every run meets it, what was measured."""
+    what: str
+    passed: bool
+    detail: str
 
 FRAGMENT = "locomotion.md"
 COURSES_FIGURE, LONG_FIGURE = "locomotion_courses.png", "locomotion_long.png"
@@ -112,11 +120,11 @@ def _worst(results: Sequence[CaseResult], key: str, limit: float, scale: float =
     return within == len(values), detail
 
 
-def target_checks(results: Sequence[CaseResult]) -> list[Check]:
+def target_checks(results: Sequence[CaseResult]) -> list[Target]:
     """The issue's done-when list on what `results` hold; a target whose runs are not in the set is left out."""
     checks = []
     counts = {name: sum(outcome(r) == name for r in results) for name in ("fell", "left terrain", "error", "failed")}
-    checks.append(Check(f"0 falls in the whole benchmark ({_count(len(results), 'run')})", counts["fell"] == 0 and not counts["failed"],
+    checks.append(Target(f"0 falls in the whole benchmark ({_count(len(results), 'run')})", counts["fell"] == 0 and not counts["failed"],
                         f"{counts['fell']} fell; {counts['left terrain']} left the terrain, {counts['error']} stopped "
                         f"on an error, {counts['failed']} without metrics"))
     long_runs = {r.case.scenario: r for r in results if r.case.group == LONG}
@@ -127,7 +135,7 @@ def target_checks(results: Sequence[CaseResult]) -> list[Check]:
             run = long_runs[scenario]
             measured = value(run, key)
             what = "RMS" if key == "tilt_rms_deg" else "max"
-            checks.append(Check(f"{run.case.config['run']['duration']:g} s {scenario}: tilt {what} <= {limit:g} deg",
+            checks.append(Target(f"{run.case.config['run']['duration']:g} s {scenario}: tilt {what} <= {limit:g} deg",
                                 measured is not None and measured <= limit,
                                 "no figure" if measured is None else f"{measured:.3f} deg"))
     courses = [r for r in results if r.case.group == COURSES] + ([long_runs[RAMPS]] if RAMPS in long_runs else [])
@@ -138,7 +146,7 @@ def target_checks(results: Sequence[CaseResult]) -> list[Check]:
                 ("tilt_rms_deg", COURSE_TILT_RMS, f"tilt RMS <= {COURSE_TILT_RMS:g} deg", 1, "deg"),
                 ("height_error_rms_m", COURSE_HEIGHT_RMS, f"height error RMS <= {COURSE_HEIGHT_RMS * 1e3:g} mm", 1e3, "mm")):
             met, detail = _worst(courses, key, limit, scale, unit)
-            checks.append(Check(f"{where}: {what}", met, detail))
+            checks.append(Target(f"{where}: {what}", met, detail))
     if RAMPS in long_runs:
         run = long_runs[RAMPS]
         ticks = value(run, "ik_limited_ticks")
@@ -148,12 +156,12 @@ def target_checks(results: Sequence[CaseResult]) -> list[Check]:
         if mixed:
             detail += (f" (the mixed courses, with steps and stairs: {mixed_ticks} ticks in "
                        f"{sum((value(r, 'ik_limited_ticks') or 0) > 0 for r in mixed)} of {len(mixed)} runs)")
-        checks.append(Check(f"IK-limited ticks 0 on ramps of {locobench.RAMP_DEG[0]:g}-{locobench.RAMP_DEG[1]:g} deg "
+        checks.append(Target(f"IK-limited ticks 0 on ramps of {locobench.RAMP_DEG[0]:g}-{locobench.RAMP_DEG[1]:g} deg "
                             f"({run.case.config['run']['duration']:g} s ramp course)", ticks == 0, detail))
     targets = [r for r in results if r.case.group == COURSES]
     if targets:
         met, detail = _worst(targets, "target_error_m", TARGET_ERROR, 100, "cm", 1)
-        checks.append(Check(f"walk to a target across a course: within {TARGET_ERROR * 100:g} cm "
+        checks.append(Target(f"walk to a target across a course: within {TARGET_ERROR * 100:g} cm "
                             f"({_count(len(targets), 'run')})",
                             met, detail))
     return checks
@@ -345,7 +353,7 @@ def _save(figure, path: Path) -> None:
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=100)
     plt.close(figure)
-    _write_atomically(path, buffer.getvalue())
+    write_atomically(path, buffer.getvalue())
 
 
 COURSE_PANELS = (   # metric key, axis label (log scale), scale, target
@@ -461,14 +469,14 @@ def write(result: LocoResult, folder: Path) -> None:
     """locomotion.md (with its plots beside it), locomotion.csv and the plots, in `folder`."""
     folder = Path(folder)
     write_plots(result, folder)
-    _write_atomically(folder / "locomotion.csv", csv_text(run_rows(result.results)).encode())
-    _write_atomically(folder / FRAGMENT, ("# Locomotion benchmark\n\n" + markdown(result, ".")).encode())
+    write_atomically(folder / "locomotion.csv", csv_text(run_rows(result.results)).encode())
+    write_atomically(folder / FRAGMENT, ("# Locomotion benchmark\n\n" + markdown(result, ".")).encode())
 
 
 def write_docs(result: LocoResult, docs: Path = DOCS) -> None:
     """docs/results/locomotion.{md,csv}, docs/img/locomotion_*.png, then docs/results.md."""
     write_plots(result, docs / "img")
-    _write_atomically(docs / "results" / "locomotion.csv", csv_text(run_rows(result.results)).encode())
-    _write_atomically(docs / "results" / FRAGMENT,
+    write_atomically(docs / "results" / "locomotion.csv", csv_text(run_rows(result.results)).encode())
+    write_atomically(docs / "results" / FRAGMENT,
                       ("## Locomotion (issue 21)\n\n" + markdown(result, "img", "docs/results/locomotion.csv")).encode())
     write_results_page(docs)
