@@ -383,12 +383,14 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     progress = _progress(phase, parameters, np.empty(6))
     # Ground found in the second part of a swing, or at or after its scheduled end: land there.
     touched = swinging & contact & (~now | (progress >= p.touchdown_phase))
+    raises = p.max_swing_height > 0.0
+    if raises and measured is not None and (touched & now).any():
+        touched &= ~_short_of_edges(parameters, s, touched & now, measured, ~swinging)
     if measured is not None:
         _copy_rows(feet, measured, touched)     # where it touched, not where its lagging target got to
     elif not follows_terrain:
         _copy_rows(feet, _touchdown(parameters, twist), touched)     # the ellipse's end
     swinging &= ~touched
-    raises = p.max_swing_height > 0.0
     if raises:
         _remember_landings(s, touched)
     searching = swinging & ~now
@@ -467,6 +469,28 @@ def _plan_lifts(parameters, s, lifting, stance):
                     and feet[other, 0] > feet[leg, 0]:
                 needed = max(needed, feet[other, 2] - feet[leg, 2] + p.clearance)
         s.lift[leg] = min(needed, p.max_swing_height)
+
+
+@njit(cache=True)
+def _short_of_edges(parameters, s, touched, measured, stance):
+    """The swing feet among `touched` that touched ground on their way down higher than both
+    the stance feet's plane and their swing's start by more than RISER_HEIGHT (a step's top, met
+    from above) or short of a
+    riser they met: they do not land yet. The first such touch is remembered as an edge, so that
+    the foot keeps clear above it and lands `edge_margin` beyond it, not on the corner it may
+    have met."""
+    p = parameters[0]
+    short = np.zeros(6, dtype=np.bool_)
+    plane_height, slope_x, slope_y = walk_plane(s.feet, stance, p.neutral_height)
+    for leg in range(6):
+        if not touched[leg]:
+            continue
+        x, y, z = measured[leg, 0], measured[leg, 1], measured[leg, 2]
+        ground = max(plane_height + slope_x * x + slope_y * y, s.liftoff[leg, 2])
+        if math.isnan(s.edge[leg, 0]) and z - ground > RISER_HEIGHT:
+            s.edge[leg, 0], s.edge[leg, 1] = x, z
+        short[leg] = x < s.edge[leg, 0] + p.edge_margin
+    return short
 
 
 @njit(cache=True)
