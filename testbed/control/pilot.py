@@ -96,7 +96,19 @@ class Pilot(Controller):
         self.encoder_positions = self.joint_targets.copy()
         self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)    # body frame, per encoder sample
         self.body_targets = self.encoder_feet.copy()                                  # body frame, the last tick's
-        self.gait = GaitGenerator(name, self.encoder_feet.copy(), period, swing_height, adaptation, lead=lead)
+        neutral = self.encoder_feet.copy()
+        self.start_rise = self._start_rise() if self.use_posture else 0.0
+        neutral[:, 2] -= self.start_rise
+        self.gait = GaitGenerator(name, neutral, period, swing_height, adaptation, lead=lead)
+
+    def _start_rise(self) -> float:
+        """m the body rises during the start-up to stand `robot.stance_height` above its feet's
+        plane (the body starts level). On rough ground the start can put it lower, close to the
+        blocks under it, which the calibration poses' tilts then strike."""
+        all_feet = np.ones(6, dtype=bool)
+        height = kinematic_height(self.geometry, self.encoder_positions, all_feet, 0.0, 0.0,
+                                  self.config.robot.foot_radius)
+        return max(0.0, self.config.robot.stance_height - height)
 
     def command_details(self) -> Command | None:
         return self.last_command
@@ -118,6 +130,8 @@ class Pilot(Controller):
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
+            if t < startup_time:
+                feet[:, 2] += (1.0 - self.startup.rise(t)) * self.start_rise
         # The law engages once the start-up (still, then the calibration poses) is over.
         if self.posture_law is not None and t >= startup_time and self.latest_estimate is not None:
             measurement = self._posture_measurement(self.truth_attitude)
