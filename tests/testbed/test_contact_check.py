@@ -47,6 +47,21 @@ def test_ground_reported_under_a_foot_high_in_the_air_is_not_believed_and_marks_
     assert contact_check.faults_detected == 1
 
 
+def test_ground_read_high_in_a_swings_landing_part_after_reading_none_is_a_step_top():
+    """The same foot 4 cm up, but its sensor read no ground earlier in the swing and the swing is
+    landing: a step's top met on the way down, believed at once (not only once the foot is held
+    up, which the body yields to); in the rising part it is not believed."""
+    for landing_part, believed in ((True, True), (False, False)):
+        contact_check = check()
+        feet = NEUTRAL.copy()
+        feet[FRONT_LEFT, 2] += 0.04
+        swinging = np.arange(6) == FRONT_LEFT
+        landing = swinging & landing_part
+        tick(contact_check, feet, ~swinging, swinging, landing)            # in the air, reading none
+        contact = tick(contact_check, feet, np.ones(6, bool), swinging, landing)
+        assert contact[FRONT_LEFT] == believed and contact[1:].all()
+
+
 def test_a_foot_held_up_counts_as_touching_whatever_its_sensor_says():
     contact_check = check()
     feet = NEUTRAL.copy()
