@@ -118,6 +118,8 @@ class Pilot(Controller):
         where a test sets it), inverse kinematics."""
         if estimate is not None:
             self.latest_estimate = estimate
+            if estimate.gyro_bias_cov is not None:
+                self.heading.adopt_bias(t, estimate.gyro_bias[2], estimate.gyro_bias_cov[2, 2])
         self._absorb(samples)
         startup_time = self.startup_time
         walking = self.walking_gait and t >= startup_time
