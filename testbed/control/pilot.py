@@ -82,9 +82,8 @@ class Pilot(Controller):
         self.foot_contact = np.ones(6, dtype=bool)     # the contact flags the gait uses (checked)
         self.sensor_contact = np.ones(6, dtype=bool)   # the foot sensors' latest flags
         self.foot_forces = np.zeros(6)
-        # a foot's no-load speed: the servos' at the tibia's length
         self.contact_check = ContactCheck(config.robot.servo_gain, self.dt, 1.0 / config.sensors.encoder.rate,
-                                          config.robot.servo_speed_limit * config.robot.tibia_length)
+                                          config.robot.servo_speed_limit, geometry.arrays)
         # share per tick of the gait frame's tilt that is turned out (none without a posture law)
         self.gait_level_rate = min(1.0, self.dt / config.posture.gait_level_time_constant) if self.use_posture else 0.0
         self.ik_limited_ticks = 0
@@ -128,7 +127,7 @@ class Pilot(Controller):
         if walking:
             measured = self._measured_feet()
             self.foot_contact = self.contact_check.update(self.sensor_contact, self.foot_forces, self.encoder_feet,
-                                                          measured, self.body_targets, gait.state_record)
+                                                          measured, self.joint_targets, gait.state_record)
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
