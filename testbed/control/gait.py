@@ -409,6 +409,8 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
     if searching.any():
         _search(feet, swinging, searching, search_floor, p.search_speed * dt)
+        if raises:
+            _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
