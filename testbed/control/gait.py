@@ -79,6 +79,12 @@ FRONT_LEGS = (0, 5)
 FOOTHOLDS = 6
 # m a follower's touch-down may move onto a proven foothold beyond the stride's reach allowance
 FOOTHOLD_REACH = 0.005
+# The ground's slope ahead: a line through each side's last SLOPE_FOOTHOLDS front footholds, trusted
+# when they fit it within SLOPE_FIT (RMS; a step among them does not), moving the stance at most
+# SLOPE_SHIFT_LIMIT uphill.
+SLOPE_FOOTHOLDS = 4
+SLOPE_FIT = 0.004
+SLOPE_SHIFT_LIMIT = 0.04
 
 
 class Twist(NamedTuple):
@@ -109,6 +115,7 @@ class TerrainAdaptation:
     max_swing_height: float = 0.0   # m above the swing's start; 0: the swing height, never raised
     edge_margin: float = 0.0    # m, a foot blocked by a riser lands at least this far beyond it
     max_step_length: float = 0.0    # m, the longest stride the legs reach (a follower's aim at a foothold)
+    slope_shift: float = 0.0    # m per unit of the ground's slope under the front feet: touch-downs move uphill
 
     @property
     def follows_terrain(self) -> bool:
@@ -144,6 +151,7 @@ GAIT_PARAMETERS = np.dtype([
     ("max_swing_height", "f8"),
     ("edge_margin", "f8"),
     ("max_step_length", "f8"),          # m, the longest stride the legs reach
+    ("slope_shift", "f8"),              # m per unit slope, touch-downs move uphill
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -193,6 +201,7 @@ class GaitGenerator:
                              ("plane_time_constant", search.plane_time_constant),
                              ("clearance", search.clearance), ("max_swing_height", search.max_swing_height),
                              ("edge_margin", search.edge_margin), ("max_step_length", search.max_step_length),
+                             ("slope_shift", search.slope_shift),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
@@ -427,6 +436,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     touchdown = _touchdown(parameters, twist)
     if raises:
         _onto_footholds(s, touchdown, swinging)
+        _shift_uphill(p.slope_shift * footholds_slope(s.footholds, s.foothold_count), touchdown, s.aim, swinging)
         _beyond_edges(parameters, s, touchdown)
     plane_height = 0.0
     if follows_terrain:
@@ -513,6 +523,50 @@ def _short_of_edges(parameters, s, touched, measured, stance):
             s.edge[leg, 0], s.edge[leg, 1] = x, z
         short[leg] = x < s.edge[leg, 0] + p.edge_margin
     return short
+
+
+@njit(cache=True)
+def footholds_slope(footholds, count):
+    """dz/dx of the ground under the front feet: the least-squares slope of the last
+    SLOPE_FOOTHOLDS footholds of each side (one slope, an intercept per side), or 0 when there
+    are fewer or they do not lie on it within SLOPE_FIT (RMS): an edge among them."""
+    if min(count[0], count[1]) < SLOPE_FOOTHOLDS:
+        return 0.0
+    means = np.zeros((2, 2))
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            means[side, 0] += point[0] / SLOPE_FOOTHOLDS
+            means[side, 1] += point[2] / SLOPE_FOOTHOLDS
+    sxx, sxz = 0.0, 0.0
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            sxx += (point[0] - means[side, 0]) ** 2
+            sxz += (point[0] - means[side, 0]) * (point[2] - means[side, 1])
+    if not sxx > 0.0:
+        return 0.0
+    slope = sxz / sxx
+    residual = 0.0
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            residual += (point[2] - means[side, 1] - slope * (point[0] - means[side, 0])) ** 2
+    if math.sqrt(residual / (2 * SLOPE_FOOTHOLDS)) > SLOPE_FIT:
+        return 0.0
+    return slope
+
+
+@njit(cache=True)
+def _shift_uphill(shift, touchdown, aim, swinging):
+    """On a slope a level body's downhill legs reach far down at the end of their stride (the
+    rear legs walking up, the front legs walking down) and its uphill legs fold: the touch-downs
+    move uphill by `shift` (m, along x; at most SLOPE_SHIFT_LIMIT), the stance with them. A
+    swing aimed at a proven foothold keeps it."""
+    shift = min(max(shift, -SLOPE_SHIFT_LIMIT), SLOPE_SHIFT_LIMIT)
+    for leg in range(6):
+        if not (swinging[leg] and aim[leg] >= 0):
+            touchdown[leg, 0] += shift
 
 
 @njit(cache=True)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, walk_plane
+from testbed.control.gait import (FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
+                                  footholds_slope, walk_plane)
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -301,3 +302,15 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     middle = world_x[landings(swinging, 1), 1]
     aimed = middle[np.abs(middle - edge) < 0.02]
     assert len(aimed) == 1 and np.abs(front_stood - aimed[0]).min() < 1e-3
+
+
+def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_on_a_line():
+    footholds = np.full((2, FOOTHOLDS, 3), np.nan)
+    x = np.array([-0.3, -0.2, -0.1, 0.0, 0.1, 0.2])
+    for side, (y, offset) in enumerate(((0.16, -0.09), (-0.16, -0.07))):     # the sides at other heights
+        footholds[side] = np.column_stack([x, np.full(6, y), offset + np.tan(np.radians(20.0)) * x])
+    count = np.array([FOOTHOLDS, FOOTHOLDS])
+    assert footholds_slope(footholds, count) == pytest.approx(np.tan(np.radians(20.0)), rel=1e-12)
+    assert footholds_slope(footholds, np.array([3, FOOTHOLDS])) == 0.0          # too few yet
+    footholds[0, -1, 2] += 0.03                                                # a 3 cm step among them
+    assert footholds_slope(footholds, count) == 0.0
