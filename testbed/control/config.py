@@ -81,6 +81,7 @@ class PostureConfig:
     max_swing_height: float
     step_clearance: float
     edge_margin: float
+    slope_stance_shift: float
 
     def __post_init__(self) -> None:
         POSTURE_LAWS.check_spec(self.law)
@@ -93,6 +94,8 @@ class PostureConfig:
         require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
         require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")
         non_negative("posture step adaptation", self.max_swing_height, self.step_clearance, self.edge_margin)
+        require(0 <= self.slope_stance_shift <= 0.2,
+                f"posture.slope_stance_shift must lie in [0, 0.2] m, got {self.slope_stance_shift}")
         require(self.max_swing_height == 0 or self.max_swing_height >= self.step_clearance,
                  "posture.max_swing_height must be 0 (swings never raised) or at least posture.step_clearance")
 

@@ -6,11 +6,13 @@ on lands in mid-air (and its tripod then drops the body onto it) and one stuck o
 for ground until the bottom of its workspace, lifting the body. Two kinematic facts, from the
 joint encoders and the targets the pilot gave the servos, can contradict a flag:
 
-- **held up**: the foot stands higher than where the servos would have taken it in free air (a
-  first-order model of the servos, `servo_gain`, speed-limited, driven by the targets) by more
-  than `block_margin` beyond what it can have moved since its encoder reading: something under
-  the foot carries it; **stopped** when it stands off that model by more than `obstacle_margin`
-  in any direction (a riser in its way; the model is only first order, hence the wider margin);
+- **held up**: the foot stands higher than where the servos would have taken it in free air by
+  more than `block_margin` beyond what it can have moved since its encoder reading: something
+  under the foot carries it; **stopped** when it stands off that model by more than
+  `obstacle_margin` in any direction (a riser in its way). The model is the servos' own law in
+  joint space (speed proportional to the position error, `servo_gain`, saturated at the no-load
+  speed) driven by the joint targets, through the legs' forward kinematics: a fast swing's feet
+  lag their targets as the joints do, not as a Cartesian first-order lag would;
 - **in the air**: a swinging foot neither held up nor stopped that stands higher than
   `air_height` above both the plane of the stance feet (gait frame, encoders) and the point
   where its swing began.
@@ -33,6 +35,7 @@ import numpy as np
 from numba import njit
 
 from testbed.control.gait import walk_plane
+from testbed.model.kinematics import foot_positions_arrays
 
 
 class ContactLimits(NamedTuple):
@@ -48,14 +51,15 @@ class ContactLimits(NamedTuple):
 # compiled check reads and updates by field name (flags stored as uint8).
 CHECK_PARAMETERS = np.dtype([
     ("dt", "f8"),                       # s per tick
-    ("servo_step", "f8"),               # min(1, servo_gain dt): share of the distance to the target per tick
     ("servo_gain", "f8"),               # 1/s
-    ("max_step", "f8"),                 # m per tick at the servos' no-load speed
+    ("servo_speed", "f8"),              # rad/s, the servos' no-load speed
     ("encoder_period", "f8"),           # s between encoder readings: how old a reading can be
     *[(name, "f8") for name in ContactLimits._fields],
 ])
 CHECK_STATE = np.dtype([
-    ("free", "f8", (6, 3)),             # the feet in free air, body frame (the servo model)
+    ("free_joints", "f8", 18),          # the joints in free air (the servo model), rad
+    ("free", "f8", (6, 3)),             # the feet there, body frame
+    ("free_step", "f8", (6, 3)),        # m they moved at the last tick
     ("faulty", "u1", 6),                # sensors judged to lie
     ("disagreement", "f8", 6),          # s the flag has disagreed with the kinematics (while trusted)
     ("agreement", "f8", (6, 2)),        # s it read no ground in the air, and ground in stance (while faulty)
@@ -69,12 +73,13 @@ class ContactCheck:
     """Per tick: `update(...)` returns the contact flags to use (6,) bool; `faulty` (6,) bool
     marks the sensors judged to lie; `faults_detected` counts the marks made."""
 
-    def __init__(self, servo_gain: float, dt: float, encoder_period: float, foot_speed: float,
+    def __init__(self, servo_gain: float, dt: float, encoder_period: float, servo_speed: float, legs: np.ndarray,
                  limits: ContactLimits = ContactLimits()):
+        """`legs`: the legs' geometry (a LEG_ARRAYS record, `LegGeometry.arrays`)."""
+        self.legs = legs
         self.parameters = np.zeros(1, CHECK_PARAMETERS)
-        for field, value in (("dt", dt), ("servo_step", min(1.0, servo_gain * dt)), ("servo_gain", servo_gain),
-                             ("max_step", foot_speed * dt), ("encoder_period", encoder_period),
-                             *limits._asdict().items()):
+        for field, value in (("dt", dt), ("servo_gain", servo_gain), ("servo_speed", servo_speed),
+                             ("encoder_period", encoder_period), *limits._asdict().items()):
             self.parameters[field] = value
         self.state = np.zeros(1, CHECK_STATE)
         self.state["released"] = 1
@@ -87,15 +92,34 @@ class ContactCheck:
         return int(self.state["marked"][0])
 
     def update(self, flags: np.ndarray, forces: np.ndarray, measured: np.ndarray, gait_frame: np.ndarray,
-               targets: np.ndarray, gait_state: np.ndarray) -> np.ndarray:
+               joint_targets: np.ndarray, gait_state: np.ndarray) -> np.ndarray:
         """`flags`, `forces`: the latest foot sample; `measured`: the feet where the encoders put
-        them, body frame; `gait_frame`: the same in the gait frame; `targets`: the body-frame
-        targets given to the servos at the last tick; `gait_state`: the gait's GAIT_STATE record
-        (which legs swing, which swings land, where they began)."""
+        them, body frame; `gait_frame`: the same in the gait frame; `joint_targets`: the joint
+        targets (18,) given to the servos at the last tick, which the joints started from at the
+        first call; `gait_state`: the gait's GAIT_STATE record (which legs swing, which swings
+        land, where they began)."""
         if not self._started:
-            self.state["free"] = measured
+            self.state["free_joints"] = joint_targets
+            self.state["free"] = foot_positions_arrays(np.asarray(joint_targets, dtype=float), self.legs)
             self._started = True
-        return checked_contact(flags, forces, measured, gait_frame, targets, gait_state, self.state, self.parameters)
+        free_air_step(joint_targets, self.state, self.parameters, self.legs)
+        return checked_contact(flags, forces, measured, gait_frame, gait_state, self.state, self.parameters)
+
+
+@njit(cache=True)
+def free_air_step(joint_targets, state, parameters, legs):
+    """The servo model one tick on: each joint moves at servo_gain times its error to its target,
+    at most the no-load speed (the simulated servos' law); the feet there by forward kinematics."""
+    s, p = state[0], parameters[0]
+    joints = s.free_joints
+    for joint in range(18):
+        speed = min(max(p.servo_gain * (joint_targets[joint] - joints[joint]), -p.servo_speed), p.servo_speed)
+        joints[joint] += speed * p.dt
+    feet = foot_positions_arrays(joints, legs)
+    for leg in range(6):
+        for axis in range(3):
+            s.free_step[leg, axis] = feet[leg, axis] - s.free[leg, axis]
+            s.free[leg, axis] = feet[leg, axis]
 
 
 @njit(cache=True)
@@ -112,9 +136,9 @@ def stance_plane_heights(gait_frame, stance):
 
 
 @njit(cache=True)
-def checked_contact(flags, forces, measured, gait_frame, targets, gait_state, state, parameters):
-    """ContactCheck.update's work: the contact flags to use. Moves the servo model one tick
-    towards `targets` and updates the CHECK_STATE record `state` in place."""
+def checked_contact(flags, forces, measured, gait_frame, gait_state, state, parameters):
+    """ContactCheck.update's work after the servo model's step: the contact flags to use.
+    Updates the CHECK_STATE record `state` in place."""
     g, s, p = gait_state[0], state[0], parameters[0]
     swinging, landing = g.swinging != 0, g.landing != 0
     free, faulty, disagreement, agreement = s.free, s.faulty, s.disagreement, s.agreement
@@ -124,10 +148,8 @@ def checked_contact(flags, forces, measured, gait_frame, targets, gait_state, st
         off = np.zeros(3)       # m the foot stands off the free-air model
         stale = np.zeros(3)     # m it can have moved since its encoder reading
         for axis in range(3):
-            lag = targets[leg, axis] - free[leg, axis]
-            free[leg, axis] += min(max(p.servo_step * lag, -p.max_step), p.max_step)
             off[axis] = measured[leg, axis] - free[leg, axis]
-            stale[axis] = abs(p.servo_gain * lag) * p.encoder_period
+            stale[axis] = abs(s.free_step[leg, axis]) / p.dt * p.encoder_period
         held_up = off[2] - stale[2] > p.block_margin
         blocked = held_up or (np.abs(off) - stale).max() > p.obstacle_margin
         raised = gait_frame[leg, 2] - g.liftoff[leg, 2]
@@ -149,7 +171,12 @@ def checked_contact(flags, forces, measured, gait_frame, targets, gait_state, st
                 agreement[leg, 0] = agreement[leg, 1] = 0.0
                 s.marked += 1
         if faulty[leg] == 0:
-            contact[leg] = (flags[leg] and not in_air) or held_up
+            # Ground read in the air is believed in a swing's landing part from a sensor that has
+            # read no ground since the swing began: a step's top met on the way down. Waiting for
+            # the foot to be held up there lets its target sink, and the body yields: the leg
+            # lifts the body off the other feet instead.
+            landed_high = in_air and landing[leg] and s.released[leg] != 0
+            contact[leg] = (flags[leg] and (not in_air or landed_high)) or held_up
             continue
         # the foot is held up, stands, or has come down to the other feet's plane
         contact[leg] = held_up or not swinging[leg] or (landing[leg] and heights[leg] <= 0.0)

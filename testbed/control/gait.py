@@ -74,6 +74,17 @@ STANCE_SETTLE_TIME = 0.05
 RISING_HALF = 0.5
 # m: a swing foot this far above its start that touches something on its way up has met a riser
 RISER_HEIGHT = 0.01
+# Footholds the front feet stood on, remembered per side for the middle and rear feet (a ring).
+FRONT_LEGS = (0, 5)
+FOOTHOLDS = 6
+# m a follower's touch-down may move onto a proven foothold beyond the stride's reach allowance
+FOOTHOLD_REACH = 0.005
+# The ground's slope ahead: a line through each side's last SLOPE_FOOTHOLDS front footholds, trusted
+# when they fit it within SLOPE_FIT (RMS; a step among them does not), moving the stance at most
+# SLOPE_SHIFT_LIMIT uphill.
+SLOPE_FOOTHOLDS = 4
+SLOPE_FIT = 0.004
+SLOPE_SHIFT_LIMIT = 0.04
 
 
 class Twist(NamedTuple):
@@ -103,6 +114,8 @@ class TerrainAdaptation:
     clearance: float = 0.0      # m, a swing clears known higher footholds ahead and a riser by this
     max_swing_height: float = 0.0   # m above the swing's start; 0: the swing height, never raised
     edge_margin: float = 0.0    # m, a foot blocked by a riser lands at least this far beyond it
+    max_step_length: float = 0.0    # m, the longest stride the legs reach (a follower's aim at a foothold)
+    slope_shift: float = 0.0    # m per unit of the ground's slope under the front feet: touch-downs move uphill
 
     @property
     def follows_terrain(self) -> bool:
@@ -137,6 +150,8 @@ GAIT_PARAMETERS = np.dtype([
     ("clearance", "f8"),
     ("max_swing_height", "f8"),
     ("edge_margin", "f8"),
+    ("max_step_length", "f8"),          # m, the longest stride the legs reach
+    ("slope_shift", "f8"),              # m per unit slope, touch-downs move uphill
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -147,6 +162,10 @@ GAIT_STATE = np.dtype([
     ("lift", "f8", 6),                  # m, height of each leg's current swing
     ("raised", "f8", 6),                # m, extra height for a leg's next swing after a blocked one
     ("edge", "f8", (6, 2)),             # (x, z) of a riser a swing foot met, gait frame; x NaN: none
+    ("footholds", "f8", (2, FOOTHOLDS, 3)),   # per side (left, right): where its front foot stood at its
+                                        # last lift-offs, gait frame, moving with the ground; x NaN: none
+    ("foothold_count", "i8", 2),        # lift-offs recorded per side
+    ("aim", "i8", 6),                   # the footholds slot a middle or rear swing lands on; -1: none
     ("swinging", "u1", 6),              # in the air
     ("scheduled", "u1", 6),             # the schedule's swings at the last step
     ("searching", "u1", 6),             # reaching down for ground the clock waits for
@@ -181,12 +200,13 @@ class GaitGenerator:
                              ("search_depth", search.search_depth), ("touchdown_phase", search.touchdown_phase),
                              ("plane_time_constant", search.plane_time_constant),
                              ("clearance", search.clearance), ("max_swing_height", search.max_swing_height),
-                             ("edge_margin", search.edge_margin),
+                             ("edge_margin", search.edge_margin), ("max_step_length", search.max_step_length),
+                             ("slope_shift", search.slope_shift),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
         record["feet"], record["liftoff"], record["search_floor"] = self.neutral, self.neutral, -np.inf
-        record["lift"], record["edge"] = swing_height, np.nan
+        record["lift"], record["edge"], record["footholds"], record["aim"] = swing_height, np.nan, np.nan, -1
         self.state = GaitState(record["feet"][0], record["swinging"][0].view(bool), record["liftoff"][0])
         self.scheduled = record["scheduled"][0].view(bool)
         self.search_floor = record["search_floor"][0]
@@ -383,12 +403,14 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     progress = _progress(phase, parameters, np.empty(6))
     # Ground found in the second part of a swing, or at or after its scheduled end: land there.
     touched = swinging & contact & (~now | (progress >= p.touchdown_phase))
+    raises = p.max_swing_height > 0.0
+    if raises and measured is not None and (touched & now).any():
+        touched &= ~_short_of_edges(parameters, s, touched & now, measured, ~swinging)
     if measured is not None:
         _copy_rows(feet, measured, touched)     # where it touched, not where its lagging target got to
     elif not follows_terrain:
         _copy_rows(feet, _touchdown(parameters, twist), touched)     # the ellipse's end
     swinging &= ~touched
-    raises = p.max_swing_height > 0.0
     if raises:
         _remember_landings(s, touched)
     searching = swinging & ~now
@@ -396,16 +418,25 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
     if searching.any():
         _search(feet, swinging, searching, search_floor, p.search_speed * dt)
+        if raises:
+            _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
     if raises:
         _plan_lifts(parameters, s, lifting, ~swinging)
+        if measured is None:
+            _record_footholds(s, lifting, feet)
+        else:
+            _record_footholds(s, lifting, measured)
+        _choose_footholds(parameters, s, lifting, twist)
     swinging |= lifting
     _store_flags(s.swinging, swinging)
     _store_flags(s.scheduled, now)
     touchdown = _touchdown(parameters, twist)
     if raises:
+        _onto_footholds(s, touchdown, swinging)
+        _shift_uphill(p.slope_shift * footholds_slope(s.footholds, s.foothold_count), touchdown, s.aim, swinging)
         _beyond_edges(parameters, s, touchdown)
     plane_height = 0.0
     if follows_terrain:
@@ -415,6 +446,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     _move_stance(feet, ~swinging, twist, dt)
     if raises:
         _move_edges(s.edge, twist, feet, dt)
+        _move_footholds(s.footholds, twist, dt)
     if not follows_terrain:
         _settle_stance(feet, swinging, p.neutral, dt)
     in_swing = swinging & now
@@ -437,15 +469,17 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
                                min(1.0, dt / p.plane_time_constant))
     for leg in range(6):
         s.edge[leg, 1] -= shift
+    s.footholds[:, :, 2] -= shift
     return False, shift
 
 
 @njit(cache=True)
 def _remember_landings(s, touched):
-    """A foot that landed forgets its riser; a swing that was never blocked clears the extra
-    height the leg's next swing would have had."""
+    """A foot that landed forgets its riser and its aim; a swing that was never blocked clears
+    the extra height the leg's next swing would have had."""
     for leg in range(6):
         if touched[leg]:
+            s.aim[leg] = -1
             if math.isnan(s.edge[leg, 0]):
                 s.raised[leg] = 0.0
             s.edge[leg, 0] = np.nan
@@ -467,6 +501,147 @@ def _plan_lifts(parameters, s, lifting, stance):
                     and feet[other, 0] > feet[leg, 0]:
                 needed = max(needed, feet[other, 2] - feet[leg, 2] + p.clearance)
         s.lift[leg] = min(needed, p.max_swing_height)
+
+
+@njit(cache=True)
+def _short_of_edges(parameters, s, touched, measured, stance):
+    """The swing feet among `touched` that touched ground on their way down higher than both
+    the stance feet's plane and their swing's start by more than RISER_HEIGHT (a step's top, met
+    from above) or short of a
+    riser they met: they do not land yet. The first such touch is remembered as an edge, so that
+    the foot keeps clear above it and lands `edge_margin` beyond it, not on the corner it may
+    have met."""
+    p = parameters[0]
+    short = np.zeros(6, dtype=np.bool_)
+    plane_height, slope_x, slope_y = walk_plane(s.feet, stance, p.neutral_height)
+    for leg in range(6):
+        if not touched[leg]:
+            continue
+        x, y, z = measured[leg, 0], measured[leg, 1], measured[leg, 2]
+        ground = max(plane_height + slope_x * x + slope_y * y, s.liftoff[leg, 2])
+        if math.isnan(s.edge[leg, 0]) and z - ground > RISER_HEIGHT:
+            s.edge[leg, 0], s.edge[leg, 1] = x, z
+        short[leg] = x < s.edge[leg, 0] + p.edge_margin
+    return short
+
+
+@njit(cache=True)
+def footholds_slope(footholds, count):
+    """dz/dx of the ground under the front feet: the least-squares slope of the last
+    SLOPE_FOOTHOLDS footholds of each side (one slope, an intercept per side), or 0 when there
+    are fewer or they do not lie on it within SLOPE_FIT (RMS): an edge among them."""
+    if min(count[0], count[1]) < SLOPE_FOOTHOLDS:
+        return 0.0
+    means = np.zeros((2, 2))
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            means[side, 0] += point[0] / SLOPE_FOOTHOLDS
+            means[side, 1] += point[2] / SLOPE_FOOTHOLDS
+    sxx, sxz = 0.0, 0.0
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            sxx += (point[0] - means[side, 0]) ** 2
+            sxz += (point[0] - means[side, 0]) * (point[2] - means[side, 1])
+    if not sxx > 0.0:
+        return 0.0
+    slope = sxz / sxx
+    residual = 0.0
+    for side in range(2):
+        for back in range(1, SLOPE_FOOTHOLDS + 1):
+            point = footholds[side, (count[side] - back) % FOOTHOLDS]
+            residual += (point[2] - means[side, 1] - slope * (point[0] - means[side, 0])) ** 2
+    if math.sqrt(residual / (2 * SLOPE_FOOTHOLDS)) > SLOPE_FIT:
+        return 0.0
+    return slope
+
+
+@njit(cache=True)
+def _shift_uphill(shift, touchdown, aim, swinging):
+    """On a slope a level body's downhill legs reach far down at the end of their stride (the
+    rear legs walking up, the front legs walking down) and its uphill legs fold: the touch-downs
+    move uphill by `shift` (m, along x; at most SLOPE_SHIFT_LIMIT), the stance with them. A
+    swing aimed at a proven foothold keeps it."""
+    shift = min(max(shift, -SLOPE_SHIFT_LIMIT), SLOPE_SHIFT_LIMIT)
+    for leg in range(6):
+        if not (swinging[leg] and aim[leg] >= 0):
+            touchdown[leg, 0] += shift
+
+
+@njit(cache=True)
+def _side(leg):
+    return 0 if leg < 3 else 1
+
+
+@njit(cache=True)
+def _record_footholds(s, lifting, stood):
+    """A front foot that lifts has stood where it is through its stance: a proven foothold for
+    the middle and rear feet of its side."""
+    for leg in FRONT_LEGS:
+        if lifting[leg]:
+            side = _side(leg)
+            slot = s.foothold_count[side] % FOOTHOLDS
+            s.footholds[side, slot] = stood[leg]
+            s.foothold_count[side] += 1
+
+
+@njit(cache=True)
+def _choose_footholds(parameters, s, lifting, twist):
+    """A middle or rear swing whose planned touch-down lies between two consecutive front
+    footholds of its side that differ in height by more than RISER_HEIGHT (a step's or a block's
+    edge lies somewhere between them) aims at the nearer of the two, where the ground is known
+    to hold, if the legs reach it: not on an edge's corner, from which a foot slides off when
+    it takes the weight."""
+    p = parameters[0]
+    touchdown = _touchdown(parameters, twist)
+    swing_time = (1.0 - p.duty) * p.period
+    stride = 2.0 * abs(touchdown[0, 0] - p.neutral[0, 0])
+    reach = max(0.0, 0.5 * (p.max_step_length - stride)) + FOOTHOLD_REACH
+    for leg in range(6):
+        if not lifting[leg] or leg in FRONT_LEGS:
+            continue
+        side = _side(leg)
+        planned = touchdown[leg, 0]
+        count = s.foothold_count[side]
+        best, best_shift = -1, reach
+        for back in range(1, min(count, FOOTHOLDS)):
+            newer, older = (count - back) % FOOTHOLDS, (count - back - 1) % FOOTHOLDS
+            if abs(s.footholds[side, newer, 2] - s.footholds[side, older, 2]) <= RISER_HEIGHT:
+                continue
+            # where the two will be when the swing lands
+            ahead = _landing_x(s.footholds[side, newer], twist, swing_time)
+            behind = _landing_x(s.footholds[side, older], twist, swing_time)
+            if not behind <= planned <= ahead:
+                continue
+            for slot, x in ((newer, ahead), (older, behind)):
+                if abs(x - planned) <= best_shift:
+                    best, best_shift = slot, abs(x - planned)
+        s.aim[leg] = best
+
+
+@njit(cache=True)
+def _landing_x(point, twist, time):
+    velocity_x, _ = _ground_velocity(point[0], point[1], twist[0], twist[1], twist[2])
+    return point[0] - velocity_x * time
+
+
+@njit(cache=True)
+def _onto_footholds(s, touchdown, swinging):
+    for leg in range(6):
+        if swinging[leg] and s.aim[leg] >= 0:
+            touchdown[leg, 0] = s.footholds[_side(leg), s.aim[leg], 0]
+
+
+@njit(cache=True)
+def _move_footholds(footholds, twist, dt):
+    """Footholds are on the ground: they move against the body twist."""
+    vx, vy, wz = twist
+    for side in range(2):
+        for slot in range(FOOTHOLDS):
+            velocity_x, velocity_y = _ground_velocity(footholds[side, slot, 0], footholds[side, slot, 1], vx, vy, wz)
+            footholds[side, slot, 0] -= velocity_x * dt
+            footholds[side, slot, 1] -= velocity_y * dt
 
 
 @njit(cache=True)
@@ -530,6 +705,9 @@ def _rotate_frame(state, rotation):
         _rotate_row(feet, leg, rotation)
         _rotate_row(liftoff, leg, rotation)
         search_floor[leg] += feet[leg, 2] - before
+    for side in range(2):
+        for slot in range(FOOTHOLDS):
+            _rotate_row(s.footholds[side], slot, rotation)
 
 
 @njit(cache=True)

@@ -204,7 +204,9 @@ class GyroHeading:
         self.body_from_sensor = np.eye(3) if body_from_sensor is None else np.array(body_from_sensor, dtype=float)
         self.yaw = 0.0
         self.bias = np.zeros(3)
+        self.bias_variance = math.inf       # (rad/s)^2, of the bias's z component
         self._sum = np.zeros(3)
+        self._square_z = 0.0
         self._count = 0
         self._attitude = np.array(rot.IDENTITY)      # world_from_body since the start, (x, y, z, w)
         self._last_t: float | None = None
@@ -222,9 +224,29 @@ class GyroHeading:
                 return
             if t < self.calibration_time:
                 self._sum += rate
+                self._square_z += rate[2] ** 2
                 self._count += 1
                 self.bias = self._sum / self._count
+                if self._count > 1:      # the variance of the mean, from the samples' spread
+                    spread = (self._square_z - self._count * self.bias[2] ** 2) / (self._count - 1)
+                    self.bias_variance = max(spread, 0.0) / self._count
         self._last_t = t
+
+    def adopt_bias(self, t: float, bias_z: float, variance: float) -> None:
+        """Another estimate at time t of the gyro's z bias (rad/s, body frame; an estimator's,
+        which can observe it through the legs while walking), taken in place of the start-up
+        average when it is known better: heading errors grow with the bias error times the time
+        walked. The heading integrated so far with the old bias is corrected by the difference
+        times the time since the start-up average (a constant bias; about the vertical, which
+        the body's z axis is while it walks level)."""
+        if not (math.isfinite(bias_z) and math.isfinite(variance) and 0.0 <= variance < self.bias_variance
+                and self._count > 0 and t >= self.calibration_time):
+            return
+        turn = -(bias_z - self.bias[2]) * (t - self.calibration_time)
+        self._attitude = np.array(rot.multiply(rot.exp(0.0, 0.0, turn), tuple(self._attitude)))
+        self.yaw = rot.yaw_of(tuple(self._attitude))
+        self.bias[2] = bias_z
+        self.bias_variance = variance
 
 
 # Compiled: it runs at the IMU rate.

@@ -82,9 +82,8 @@ class Pilot(Controller):
         self.foot_contact = np.ones(6, dtype=bool)     # the contact flags the gait uses (checked)
         self.sensor_contact = np.ones(6, dtype=bool)   # the foot sensors' latest flags
         self.foot_forces = np.zeros(6)
-        # a foot's no-load speed: the servos' at the tibia's length
         self.contact_check = ContactCheck(config.robot.servo_gain, self.dt, 1.0 / config.sensors.encoder.rate,
-                                          config.robot.servo_speed_limit * config.robot.tibia_length)
+                                          config.robot.servo_speed_limit, geometry.arrays)
         # share per tick of the gait frame's tilt that is turned out (none without a posture law)
         self.gait_level_rate = min(1.0, self.dt / config.posture.gait_level_time_constant) if self.use_posture else 0.0
         self.ik_limited_ticks = 0
@@ -96,7 +95,19 @@ class Pilot(Controller):
         self.encoder_positions = self.joint_targets.copy()
         self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)    # body frame, per encoder sample
         self.body_targets = self.encoder_feet.copy()                                  # body frame, the last tick's
-        self.gait = GaitGenerator(name, self.encoder_feet.copy(), period, swing_height, adaptation, lead=lead)
+        neutral = self.encoder_feet.copy()
+        self.start_rise = self._start_rise() if self.use_posture else 0.0
+        neutral[:, 2] -= self.start_rise
+        self.gait = GaitGenerator(name, neutral, period, swing_height, adaptation, lead=lead)
+
+    def _start_rise(self) -> float:
+        """m the body rises during the start-up to stand `robot.stance_height` above its feet's
+        plane (the body starts level). On rough ground the start can put it lower, close to the
+        blocks under it, which the calibration poses' tilts then strike."""
+        all_feet = np.ones(6, dtype=bool)
+        height = kinematic_height(self.geometry, self.encoder_positions, all_feet, 0.0, 0.0,
+                                  self.config.robot.foot_radius)
+        return max(0.0, self.config.robot.stance_height - height)
 
     def command_details(self) -> Command | None:
         return self.last_command
@@ -106,6 +117,8 @@ class Pilot(Controller):
         where a test sets it), inverse kinematics."""
         if estimate is not None:
             self.latest_estimate = estimate
+            if estimate.gyro_bias_cov is not None:
+                self.heading.adopt_bias(t, estimate.gyro_bias[2], estimate.gyro_bias_cov[2, 2])
         self._absorb(samples)
         startup_time = self.startup_time
         walking = self.walking_gait and t >= startup_time
@@ -114,10 +127,12 @@ class Pilot(Controller):
         if walking:
             measured = self._measured_feet()
             self.foot_contact = self.contact_check.update(self.sensor_contact, self.foot_forces, self.encoder_feet,
-                                                          measured, self.body_targets, gait.state_record)
+                                                          measured, self.joint_targets, gait.state_record)
             feet = gait.step(gait_time, self.dt, twist, self.foot_contact, measured)
         else:
             feet = gait.state.feet.copy()
+            if t < startup_time:
+                feet[:, 2] += (1.0 - self.startup.rise(t)) * self.start_rise
         # The law engages once the start-up (still, then the calibration poses) is over.
         if self.posture_law is not None and t >= startup_time and self.latest_estimate is not None:
             measurement = self._posture_measurement(self.truth_attitude)
@@ -226,7 +241,7 @@ def terrain_adaptation(config) -> TerrainAdaptation:
     posture = config.posture
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
                              posture.walk_plane_time_constant, posture.step_clearance, posture.max_swing_height,
-                             posture.edge_margin)
+                             posture.edge_margin, config.gait.max_step_length, posture.slope_stance_shift)
 
 
 NO_TILT = (0.0, 0.0)

@@ -59,6 +59,14 @@ class CalibrationPoses:
         start, duration, _, _ = self._moves[-1]
         return start + duration + self.hold
 
+    def rise(self, t: float) -> float:
+        """Share (0 to 1) at time t of the body's rise to its stance height: over the first move of
+        the poses (over the still time without poses), minimum jerk."""
+        if self.tilt == 0.0:
+            return minimum_jerk(min(1.0, t / self.still))
+        start, duration, _, _ = self._moves[0]
+        return minimum_jerk(min(1.0, max(0.0, (t - start) / duration)))
+
     def body_tilt(self, t: float) -> tuple[float, float]:
         """Commanded body (roll, pitch), rad, at time t."""
         if self.tilt == 0.0 or t <= self.still or t >= self.end:

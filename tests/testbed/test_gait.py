@@ -1,10 +1,13 @@
 """Gait timing against the gait table, the stance line and the elliptic swing of the paper."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist, walk_plane
+from testbed.control.gait import (FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
+                                  footholds_slope, walk_plane)
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
 CFG = config.load()
@@ -230,3 +233,84 @@ def test_phase_is_the_cycle_fraction_rounded_to_a_billionth():
     for t in np.concatenate([np.arange(-2000, 5000) * DT, np.random.default_rng(1).uniform(-5.0, 500.0, 5000)]):
         expected = np.mod(np.round(t / 1.2 - gait.swing_start + gait.duty, 9), 1.0)
         np.testing.assert_allclose(gait.phase(t), expected, rtol=0, atol=1e-12)
+
+
+STEPPING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=np.inf,
+                             clearance=0.02, max_swing_height=0.08, edge_margin=0.03, max_step_length=0.08)
+
+
+def walk_over(gait, seconds, floor_at, speed=0.1):
+    """Walk `seconds` at `speed` over a rigid floor whose height (body frame) at world x is
+    `floor_at(x)` (vectorised): a foot reports contact when its target reaches the floor under
+    it and stands on it. Returns the world x, the height and the swing flag of every foot per tick."""
+    rows = []
+    for k in range(1, int(round(seconds / DT)) + 1):
+        body = gait.clock((k - 1) * DT) * speed         # the body stands while the clock waits
+        feet = gait.state.feet
+        floor = floor_at(feet[:, 0] + body)
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], floor)
+        gait.step(k * DT, DT, Twist(vx=speed), feet[:, 2] <= floor + 1e-9, measured)
+        body = gait.clock(k * DT) * speed
+        rows.append((gait.state.feet[:, 0] + body, gait.state.feet[:, 2].copy(), gait.state.swinging.copy()))
+    world_x, height, swinging = (np.array(column) for column in zip(*rows))
+    return world_x, height, swinging
+
+
+def landings(swinging, leg):
+    return np.flatnonzero(np.diff(swinging[:, leg].astype(int)) == -1) + 1
+
+
+def test_a_swing_foot_that_finds_a_step_top_on_its_way_down_lands_beyond_where_it_touched():
+    """A step 3 cm high whose edge the front left foot passes over at the top of its swing: its
+    foot comes down on the step just past the edge (it may be the corner). It does not land there:
+    it lands on the step at least edge_margin beyond that first touch."""
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPPING)
+    ground, top = NEUTRAL[0, 2], 0.03
+    probe = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPPING)
+    world_x, height, swinging = walk_over(probe, 1.0, lambda x: np.full_like(x, ground))
+    swing = np.flatnonzero(swinging[:, 0])
+    descending = swing[(height[swing, 0] - ground < 0.04) & (np.arange(len(swing)) > len(swing) / 2)][0]
+    edge = world_x[descending, 0]               # where the foot passes 4 cm above the ground on its way down
+    world_x, height, swinging = walk_over(gait, 1.2, lambda x: np.where(x >= edge, ground + top, ground))
+    first_touch = np.flatnonzero((world_x[:, 0] >= edge) & (height[:, 0] <= ground + top + 1e-9))[0]
+    landing = landings(swinging, 0)[0]
+    assert landing > first_touch
+    # on the step (where it touched, then the first tick of settling towards the start stance)
+    assert height[landing, 0] == pytest.approx(ground + top * (1 - DT / STANCE_SETTLE_TIME), abs=1e-9)
+    assert world_x[landing, 0] >= world_x[first_touch, 0] + STEPPING.edge_margin - 1e-6
+
+
+def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
+    """A step down of 3 cm whose edge lies 4 mm beyond where the left middle foot lands on level
+    ground (on its corner, with a foot's radius). The middle foot lands where the left front foot
+    stood instead, and neither it nor the rear foot lands within 8 mm of the edge."""
+    ground, drop, speed = NEUTRAL[0, 2], 0.03, 0.1
+    following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
+    blind = dataclasses.replace(following, max_swing_height=0.0)
+    flat = lambda x: np.full_like(x, ground)
+    world_x, _, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, blind), 6.0, flat)
+    middle = world_x[landings(swinging, 1), 1]
+    edge = middle[middle > 0.3][0] + 0.004      # 4 mm beyond a landing of the middle foot
+    floor_at = lambda x: np.where(x >= edge, ground - drop, ground)
+    world_x, height, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, following), 9.0, floor_at)
+    front_stood = world_x[np.flatnonzero(np.diff(swinging[:, 0].astype(int)) == 1), 0]
+    for leg in (1, 2):
+        landed = world_x[landings(swinging, leg), leg]
+        assert landed.max() > edge + 0.05                   # it walked past the edge
+        assert np.abs(landed - edge).min() > 0.008
+    middle = world_x[landings(swinging, 1), 1]
+    aimed = middle[np.abs(middle - edge) < 0.02]
+    assert len(aimed) == 1 and np.abs(front_stood - aimed[0]).min() < 1e-3
+
+
+def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_on_a_line():
+    footholds = np.full((2, FOOTHOLDS, 3), np.nan)
+    x = np.array([-0.3, -0.2, -0.1, 0.0, 0.1, 0.2])
+    for side, (y, offset) in enumerate(((0.16, -0.09), (-0.16, -0.07))):     # the sides at other heights
+        footholds[side] = np.column_stack([x, np.full(6, y), offset + np.tan(np.radians(20.0)) * x])
+    count = np.array([FOOTHOLDS, FOOTHOLDS])
+    assert footholds_slope(footholds, count) == pytest.approx(np.tan(np.radians(20.0)), rel=1e-12)
+    assert footholds_slope(footholds, np.array([3, FOOTHOLDS])) == 0.0          # too few yet
+    footholds[0, -1, 2] += 0.03                                                # a 3 cm step among them
+    assert footholds_slope(footholds, count) == 0.0

@@ -295,3 +295,24 @@ def test_support_on_terrain_in_one_call_agrees_with_the_readable_path(name):
             np.testing.assert_allclose(ours[1], expected_margin, rtol=1e-12, atol=1e-12)
         np.testing.assert_array_equal(support.last_touch, support_view(reference)["last_touch"])
     assert asked > 100
+
+
+def test_a_better_gyro_bias_replaces_the_start_up_average_and_takes_back_its_heading_error():
+    """A still gyro with a z bias of 0.01 rad/s and white noise: the 0.3 s average leaves a bias
+    error that turns the heading. An estimate known better (a smaller variance) at 20 s takes its
+    place, and the heading turned meanwhile by the old bias's error is taken back; one known worse
+    is ignored."""
+    rng = np.random.default_rng(2)
+    bias, noise, dt = 0.01, 5e-3, 1e-3
+    heading = GyroHeading(0.3)
+    for k in range(20000):
+        heading.update(k * dt, np.array([0.0, 0.0, bias]) + noise * rng.standard_normal(3))
+    error = heading.bias[2] - bias
+    assert heading.bias_variance == pytest.approx((noise**2) / 300, rel=0.2)
+    assert heading.yaw == pytest.approx(-error * (20.0 - 0.3), abs=2e-3)
+    assert abs(heading.yaw) > 4e-3
+    heading.adopt_bias(20.0, bias + 1.0, heading.bias_variance * 2.0)          # known worse: ignored
+    assert heading.bias[2] == pytest.approx(bias + error)
+    heading.adopt_bias(20.0, bias, 1e-10)
+    assert heading.bias[2] == bias and heading.bias_variance == 1e-10
+    assert abs(heading.yaw) < 2e-3

@@ -64,6 +64,32 @@ def test_the_poses_tilt_the_body_feet_planted():
     assert np.max(np.linalg.norm(end_feet[:, :2] - start_feet[:, :2], axis=1)) < 1.5e-3
 
 
+def test_the_rise_to_stance_height_takes_the_first_move(poses):
+    start, duration, _, _ = poses._moves[0]
+    t = np.arange(0.0, poses.end, 1e-3)
+    rise = np.array([poses.rise(x) for x in t])
+    assert np.all(rise[t <= start] == 0.0) and np.allclose(rise[t >= start + duration], 1.0, rtol=0.0, atol=1e-9)
+    assert np.all(np.diff(rise) >= 0.0)
+    assert CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2).rise(0.5) == 1.0
+
+
+def test_a_body_started_low_on_rough_ground_rises_to_its_stance_height_before_walking():
+    """+-3.5 cm blocks, seed 1: the start leaves the body 3.1 cm below its stance height above its
+    feet, and the calibration poses then struck a block (a fall at 1.2 s). With the rise, the
+    body stands at its stance height above its feet's plane when the walk begins."""
+    config = config_module.load(None, {"run": {"terrain": "rough", "seed": 1, "controller": "posture", "estimator": "ekf"},
+                                       "terrain": {"rough_amplitude": 0.035}})
+    collect = Collect()
+    metrics = run(config.replace(run={"duration": CalibrationPoses.from_gait(config.gait).end}), collect).metrics
+    assert not metrics["fell"]
+    truth = collect.ticks[-1].truth
+    feet = truth.foot_positions
+    design = np.column_stack([np.ones(6), feet[:, :2]])
+    plane = np.linalg.lstsq(design, feet[:, 2] - config.robot.foot_radius, rcond=None)[0]
+    height = truth.body_position[2] - plane @ [1.0, *truth.body_position[:2]]
+    assert height == pytest.approx(config.robot.stance_height, abs=0.005)
+
+
 @pytest.mark.parametrize("key, value", [("calibration_tilt_deg", 25.0), ("calibration_tilt_deg", -1.0),
                                         ("calibration_rate_dps", 0.0), ("calibration_hold_time", -0.1)])
 def test_bad_calibration_settings_are_refused(key, value):
