@@ -346,17 +346,18 @@ def markdown(result: BenchResult, checks: Sequence[Check], image_folder: str) ->
 
 # --- plots ---------------------------------------------------------------------------------------
 
-def _figure(rows: int, columns: int, size: tuple[float, float]):
+def new_figure(rows: int, columns: int, size: tuple[float, float]):
+    """A figure of rows x columns axes (matplotlib imported here: only the plots need it)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt.subplots(rows, columns, figsize=size, squeeze=False, constrained_layout=True)
 
 
-def _save(figure, path: Path) -> None:
+def save_png(figure, path: Path, dpi: int = 110) -> None:
     import matplotlib.pyplot as plt
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110)
+    figure.savefig(buffer, format="png", dpi=dpi)
     plt.close(figure)
     write_atomically(path, buffer.getvalue())
 
@@ -364,7 +365,7 @@ def _save(figure, path: Path) -> None:
 def plot_errors(replays: Sequence[ReplayResult], terrain: str, path: Path) -> None:
     figure = error_figure(replays, terrain)
     if figure is not None:
-        _save(figure, path)
+        save_png(figure, path)
 
 
 def _plotted_walks(replays: Sequence[ReplayResult], terrain: str) -> list[ReplayResult]:
@@ -391,7 +392,7 @@ def error_figure(replays: Sequence[ReplayResult], terrain: str):
     if not walks:
         return None
     contacts = list(dict.fromkeys(r.scenario.contact for r in walks))
-    figure, axes = _figure(2, len(contacts), (6.0 * len(contacts) + 2.0, 5.5))
+    figure, axes = new_figure(2, len(contacts), (6.0 * len(contacts) + 2.0, 5.5))
     handles = {}
     for column, contact in enumerate(contacts):
         mine = list({r.estimator: r for r in walks if r.scenario.contact == contact}.values())
@@ -449,7 +450,7 @@ def plot_rmse(rows: Sequence[Row], path: Path) -> None:
     terrains = list(dict.fromkeys(r.terrain for r in clean))
     names = list(dict.fromkeys(r.estimator for r in clean))
     table = {(r.terrain, r.contact, r.grade, r.estimator): r.tilt_rmse_deg for r in clean}
-    figure, axes = _figure(len(contacts), len(grades), (3.6 * len(grades) + 1.8, 2.8 * len(contacts) + 0.6))
+    figure, axes = new_figure(len(contacts), len(grades), (3.6 * len(grades) + 1.8, 2.8 * len(contacts) + 0.6))
     width = 0.8 / len(names)
     low = min(table.values())
     for i, contact in enumerate(contacts):
@@ -468,7 +469,7 @@ def plot_rmse(rows: Sequence[Row], path: Path) -> None:
         axes[i, 0].set_ylabel("tilt RMSE (°)")
     handles, labels = axes[0, 0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside right center", fontsize=8)
-    _save(figure, path)
+    save_png(figure, path)
 
 
 def plot_nees(replays: Sequence[ReplayResult], rows: Sequence[Row], path: Path) -> None:
@@ -486,7 +487,7 @@ def plot_nees(replays: Sequence[ReplayResult], rows: Sequence[Row], path: Path) 
     terrains = list(dict.fromkeys(r.scenario.terrain for r in ekf))
     if not terrains:
         return
-    figure, axes = _figure(1, 2, (11, 4.2))
+    figure, axes = new_figure(1, 2, (11, 4.2))
     for terrain in terrains:
         runs = [r.series for r in ekf if r.scenario.terrain == terrain]
         length = min(len(s.nees) for s in runs)
@@ -513,7 +514,7 @@ def plot_nees(replays: Sequence[ReplayResult], rows: Sequence[Row], path: Path) 
     axes[0, 1].set_yscale("log")
     axes[0, 1].set_ylabel("ANEES of roll and pitch")
     axes[0, 1].set_title("dots: runs; square: their mean; bar: its 95 % bounds", fontsize=9)
-    _save(figure, path)
+    save_png(figure, path)
 
 
 def write_plots(result: BenchResult, folder: Path) -> None:

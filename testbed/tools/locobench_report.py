@@ -8,7 +8,6 @@ and docs/img/locomotion_*.png, then assembles docs/results.md (bench_report.writ
 
 from __future__ import annotations
 
-import io
 import os
 import platform
 from collections.abc import Sequence
@@ -20,7 +19,7 @@ import numpy as np
 
 from testbed.tools import locobench
 from testbed.runtime.outputs import write_atomically
-from testbed.tools.bench_report import DOCS, checks_table, csv_text, write_results_page
+from testbed.tools.bench_report import DOCS, checks_table, csv_text, new_figure, save_png, write_results_page
 from testbed.tools.locobench import COURSES, LONG, CaseResult, LocoResult
 
 
@@ -341,21 +340,6 @@ def run_rows(results: Sequence[CaseResult]) -> list[dict]:
 
 # --- plots -----------------------------------------------------------------------------------
 
-def _figure(rows: int, columns: int, size: tuple[float, float]):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt.subplots(rows, columns, figsize=size, squeeze=False, constrained_layout=True)
-
-
-def _save(figure, path: Path) -> None:
-    import matplotlib.pyplot as plt
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    plt.close(figure)
-    write_atomically(path, buffer.getvalue())
-
-
 COURSE_PANELS = (   # metric key, axis label (log scale), scale, target
     ("tilt_max_deg", "tilt max (°)", 1.0, COURSE_TILT_MAX),
     ("tilt_rms_deg", "tilt RMS (°)", 1.0, COURSE_TILT_RMS),
@@ -387,7 +371,7 @@ def courses_figure(results: Sequence[CaseResult]):
     if not mine:
         return None
     scenarios = list(dict.fromkeys(r.case.scenario for r in mine))
-    figure, axes = _figure(len(COURSE_PANELS), 1, (max(8.0, 0.5 * len(scenarios) + 2.5), 10))
+    figure, axes = new_figure(len(COURSE_PANELS), 1, (max(8.0, 0.5 * len(scenarios) + 2.5), 10))
     seeds = max(r.case.index for r in mine) + 1
     for axis, (key, label, scale, target) in zip(axes[:, 0], COURSE_PANELS):
         shown = []
@@ -424,7 +408,7 @@ def long_figure(results: Sequence[CaseResult]):
     names = [r.case.scenario for r in mine]
     targets = {FLAT_SLOW: (FLAT_SLOW_TILT_RMS, FLAT_SLOW_TILT_MAX), FLAT_FAST: (FLAT_FAST_TILT_RMS, None),
                RAMPS: (COURSE_TILT_RMS, COURSE_TILT_MAX)}
-    figure, axes = _figure(1, 3, (12, 3.8))
+    figure, axes = new_figure(1, 3, (12, 3.8))
     x = np.arange(len(mine))
     for offset, key, color, which in ((-0.2, "tilt_rms_deg", "C0", 0), (0.2, "tilt_max_deg", "C1", 1)):
         axes[0, 0].bar(x + offset, [value(r, key) or 0.0 for r in mine], 0.38, color=color,
@@ -458,7 +442,7 @@ def write_plots(result: LocoResult, folder: Path) -> list[str]:
     written = []
     for name, figure in ((COURSES_FIGURE, courses_figure(result.results)), (LONG_FIGURE, long_figure(result.results))):
         if figure is not None:
-            _save(figure, Path(folder) / name)
+            save_png(figure, Path(folder) / name, dpi=100)
             written.append(name)
     return written
 
