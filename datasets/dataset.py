@@ -207,7 +207,7 @@ def _repeated_columns(name: str, column: Ragged) -> dict[str, np.ndarray]:
     width = int(column.lengths.max(initial=0))
     if suffixes is None or width > len(suffixes):
         suffixes = tuple(f"_{i}" for i in range(width))
-    table = column.matrix() if column.width() == len(suffixes) else column.table(len(suffixes))
+    table = column.table(len(suffixes))
     return {name + suffix: table[:, i] for i, suffix in enumerate(suffixes)}
 
 

@@ -51,9 +51,10 @@ class Ragged:
         return self.values.reshape(len(self.lengths), *shape)
 
     def table(self, width: int) -> np.ndarray:
-        """(N, width) float, NaN where a message holds fewer values (values beyond `width` dropped)."""
+        """(N, width): `matrix()` when every message holds `width` values; else float, NaN where a
+        message holds fewer (values beyond `width` dropped)."""
         if self.width() == width:
-            return self.values.reshape(len(self.lengths), width).astype(float, copy=False)
+            return self.matrix()
         table = np.full((len(self.lengths), width), np.nan)
         row_of_value = np.repeat(np.arange(len(self.lengths)), self.lengths)
         column_of_value = np.arange(len(self.values)) - np.repeat(np.cumsum(self.lengths) - self.lengths, self.lengths)
