@@ -83,8 +83,14 @@ def _finite(value):
 
 # --- Markdown ------------------------------------------------------------------------------------
 
-def _number(value: float | None, digits: int = 3, scale: float = 1.0) -> str:
+def number_cell(value: float | None, digits: int = 3, scale: float = 1.0) -> str:
+    """A table cell: the value times `scale` to `digits` decimals, "–" when there is none."""
     return "–" if value is None else f"{value * scale:.{digits}f}"
+
+
+def load_average() -> float:
+    """The machine's 1-minute load average (NaN where the system gives none)."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
 
 def _anees(value: float | None, bounds: tuple[float, float] | None) -> str:
@@ -98,10 +104,10 @@ def _table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str:
 
 # Columns of the full-state metrics: (key, heading, cell), shown when any run gives the key.
 POSE_COLUMNS = (
-    ("position_drift_pct", "drift (%)", lambda r: _number(r.position_drift_pct, 2)),
-    ("position_rmse_m", "position RMSE (cm)", lambda r: _number(r.position_rmse_m, 2, 100.0)),
-    ("velocity_rmse_mps", "velocity RMSE (cm/s)", lambda r: _number(r.velocity_rmse_mps, 2, 100.0)),
-    ("yaw_error_final_deg", "final yaw error (°)", lambda r: _number(r.yaw_error_final_deg, 2)),
+    ("position_drift_pct", "drift (%)", lambda r: number_cell(r.position_drift_pct, 2)),
+    ("position_rmse_m", "position RMSE (cm)", lambda r: number_cell(r.position_rmse_m, 2, 100.0)),
+    ("velocity_rmse_mps", "velocity RMSE (cm/s)", lambda r: number_cell(r.velocity_rmse_mps, 2, 100.0)),
+    ("yaw_error_final_deg", "final yaw error (°)", lambda r: number_cell(r.yaw_error_final_deg, 2)),
     ("anees_pose", "ANEES pose (bounds)", lambda r: _anees(r.anees_pose, r.anees_pose_bounds)),
 )
 
@@ -131,7 +137,7 @@ def terrain_table(rows: Sequence[Row], terrain: str, columns: Sequence[tuple]) -
             lines.append([row.contact, row.grade, f"**{row.estimator}**" if row.estimator == "ekf" else row.estimator,
                           f"**{roll}**" if row is best_roll else roll, f"**{pitch}**" if row is best_pitch else pitch,
                           f"{row.tilt_error_max_deg:.2f}", _anees(row.anees_tilt, row.anees_bounds),
-                          _number(row.height_est_rmse_m, 2, 1e3), *(cell(row) for _, _, cell in columns),
+                          number_cell(row.height_est_rmse_m, 2, 1e3), *(cell(row) for _, _, cell in columns),
                           f"{row.cost_us_per_ms:.1f}"])
     header = ["contact", "IMU", "estimator", "roll RMSE (°)", "pitch RMSE (°)", "max tilt error (°)",
               "ANEES (bounds)", "height RMS (mm)", *(heading for _, heading, _ in columns), "cost (µs / sim. ms)"]
@@ -290,7 +296,7 @@ def markdown(result: BenchResult, checks: Sequence[Check], image_folder: str) ->
     bench_set = result.bench_set
     columns = pose_columns(result.replays)
     terrains = list(dict.fromkeys(r.terrain for r in rows if r.fault == "none" and r.array == "imu_only"))
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load = load_average()
     parts = [
         coverage(bench_set),
         f"Tripod walks at the default 0.1 m/s, controller off (the bench's course: `testbed/tools/bench.py` COURSE, "

@@ -31,6 +31,7 @@ import platformdirs
 
 from testbed.runtime import config as config_module
 from testbed.runtime.metrics import write_metrics
+from testbed.tools.bench_report import load_average
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = Path(platformdirs.user_cache_dir("hexapod-testbed")) / "locobench"
@@ -307,7 +308,7 @@ def run_cases(loco_set: LocoSet, cache_dir: Path = CACHE, workers: int = 2,
     """Every case not in the cache on `workers` processes (1: in this process), then every case's
     metrics read back from its JSON file."""
     cases = list(cases) if cases is not None else loco_set.cases()
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load = load_average()
     started = time.perf_counter()
     todo = [case for case in cases if not metrics_path(case, cache_dir).exists()]
     for case in cases:

@@ -19,7 +19,8 @@ import numpy as np
 
 from testbed.tools import locobench
 from testbed.runtime.outputs import write_atomically
-from testbed.tools.bench_report import DOCS, checks_table, csv_text, new_figure, save_png, write_results_page
+from testbed.tools.bench_report import (DOCS, checks_table, csv_text, load_average, new_figure, number_cell, save_png,
+                                       write_results_page)
 from testbed.tools.locobench import COURSES, LONG, CaseResult, LocoResult
 
 
@@ -186,7 +187,7 @@ def courses_table(rows: Sequence[ScenarioRow]) -> str:
             fell, left, errors = _outcomes(row)
             lines.append(f"| {row.scenario} | {row.runs} | {fell} | {left} | {errors} | {_pair(row.tilt_rms_deg)} | "
                          f"{_pair(row.tilt_max_deg)} | {_pair(row.height_rms_mm, 1)} | {row.ik_limited_ticks} "
-                         f"({row.ik_limited_runs}) | {_pair(row.target_error_cm, 1)} | {_number(row.simulated_s, 0)} / "
+                         f"({row.ik_limited_runs}) | {_pair(row.target_error_cm, 1)} | {number_cell(row.simulated_s, 0)} / "
                          f"{row.duration_s:g} |")
     return "\n".join(lines)
 
@@ -198,15 +199,11 @@ def long_table(results: Sequence[CaseResult]) -> str:
         if r.case.group == LONG:
             height = value(r, "height_error_rms_m")
             lines.append(f"| {r.case.scenario} | {r.case.terrain} | {value(r, 'sim_time_s') or 0:.0f} of "
-                         f"{r.case.config['run']['duration']:g} | {outcome(r)} | {_number(value(r, 'tilt_rms_deg'), 3)} | "
-                         f"{_number(value(r, 'tilt_max_deg'), 3)} | {_number(height and height * 1e3, 2)} | "
-                         f"{value(r, 'ik_limited_ticks')} | {_number(value(r, 'distance_m'), 1)} | "
-                         f"{_number(value(r, 'lateral_drift_m'), 2)} |")
+                         f"{r.case.config['run']['duration']:g} | {outcome(r)} | {number_cell(value(r, 'tilt_rms_deg'), 3)} | "
+                         f"{number_cell(value(r, 'tilt_max_deg'), 3)} | {number_cell(height and height * 1e3, 2)} | "
+                         f"{value(r, 'ik_limited_ticks')} | {number_cell(value(r, 'distance_m'), 1)} | "
+                         f"{number_cell(value(r, 'lateral_drift_m'), 2)} |")
     return "\n".join(lines)
-
-
-def _number(x: float | None, digits: int) -> str:
-    return "–" if x is None else f"{x:.{digits}f}"
 
 
 def _count(n: int, noun: str) -> str:
@@ -266,7 +263,7 @@ def failures_text(results: Sequence[CaseResult]) -> str:
 
 def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.csv") -> str:
     rows = scenario_rows(result.results)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load = load_average()
     simulated = sum(value(r, "sim_time_s") or 0.0 for r in result.results)
     run_wall = sum(value(r, "wall_s") or 0.0 for r in result.results)
     full_s = None if result.loco_set.full else estimated_full_wall_s(result.results, result.workers)
