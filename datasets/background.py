@@ -11,7 +11,6 @@ import multiprocessing
 import pickle
 import signal
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from typing import Any, TypeVar
@@ -28,13 +27,12 @@ def can_fork() -> bool:
 def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
     """`function(*args)` computed in the background; yields the call that waits for its value (or
     raises its exception)."""
-    if not can_fork():
-        value = function(*args)
-        yield lambda: value
-        return
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
-        yield pool.submit(function, *args).result
+    with streamed_in_background(_one_value, function, args) as values:
+        yield lambda: next(values)
+
+
+def _one_value(function: Callable[..., T], args: tuple) -> Iterator[T]:
+    yield function(*args)
 
 
 @contextmanager
