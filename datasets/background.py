@@ -11,6 +11,7 @@ import multiprocessing
 import pickle
 import signal
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from typing import Any, TypeVar
@@ -27,12 +28,13 @@ def can_fork() -> bool:
 def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
     """`function(*args)` computed in the background; yields the call that waits for its value (or
     raises its exception)."""
-    with streamed_in_background(_one_value, function, args) as values:
-        yield lambda: next(values)
-
-
-def _one_value(function: Callable[..., T], args: tuple) -> Iterator[T]:
-    yield function(*args)
+    if not can_fork():
+        value = function(*args)
+        yield lambda: value
+        return
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
+        yield pool.submit(function, *args).result
 
 
 @contextmanager
@@ -60,6 +62,7 @@ def streamed_in_background(produce: Callable[..., Iterable[T]], *args: Any) -> I
 
 def _send_all(sender: Connection, produce: Callable[..., Iterable[Any]], args: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)     # `terminate` ends it quietly, whatever the parent's handler
     try:
         for item in produce(*args):
             sender.send((_ITEM, item))
