@@ -99,43 +99,220 @@ def nees_2d(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
 
 def score(estimates: EstimateArrays, truth_t: np.ndarray, truth_rotation: np.ndarray,
           terrain_truth: TerrainTruth | None = None, skip: float = 1.0, slope_settle: float = 2.0) -> dict:
-    """The metrics of one run (see the module docstring); keys METRIC_KEYS, values float or None."""
-    scored = estimates.t >= truth_t[0] + skip
-    if not scored.any():
+    """The metrics of one run (see the module docstring); keys METRIC_KEYS, values float or None.
+    ValueError when no estimate is later than the skipped first `skip` seconds."""
+    sums = ScoreSums()
+    sums.add(estimates, truth_t, truth_rotation, terrain_truth, truth_t[0] + skip, truth_t[0] + slope_settle)
+    if not sums.scored:
         raise ValueError(f"no estimate after the first {skip} s")
-    true_rpy = roll_pitch_yaw(truth_at(estimates.t[scored], truth_t, truth_rotation))
-    error = np.column_stack([wrap(estimates.roll[scored] - true_rpy[:, 0]),
-                             wrap(estimates.pitch[scored] - true_rpy[:, 1])])
-    tilt = angle_between(up_in_body(estimates.roll[scored], estimates.pitch[scored]),
-                         up_in_body(true_rpy[:, 0], true_rpy[:, 1]))
-    metrics = {
-        "roll_rmse_deg": float(np.degrees(rms(error[:, 0]))),
-        "pitch_rmse_deg": float(np.degrees(rms(error[:, 1]))),
-        "tilt_error_max_deg": float(np.degrees(tilt.max())),
-        "slope_error_deg": None,
-        "height_est_rmse_m": None,
-        "anees_tilt": None,
-    }
-    if estimates.tilt_cov is not None:
-        metrics["anees_tilt"] = float(np.mean(nees_2d(error, estimates.tilt_cov[scored])))
-    if terrain_truth is not None and estimates.terrain_roll is not None:
-        metrics.update(terrain_metrics(estimates, terrain_truth, truth_t[0] + skip, truth_t[0] + slope_settle))
-    return metrics
+    return sums.metrics()
 
 
-def terrain_metrics(estimates: EstimateArrays, truth: TerrainTruth, height_from: float, slope_from: float) -> dict:
-    def true_at(values):
-        return np.interp(estimates.t, truth.t, values)
+@dataclass
+class ScoreSums:
+    """The running sums the metrics are made of, added block by block of estimates (`add`), so
+    that a run of any length is scored in bounded memory."""
+    scored: int = 0                     # estimates in the scored window
+    roll_squares: float = 0.0
+    roll_count: int = 0
+    pitch_squares: float = 0.0
+    pitch_count: int = 0
+    tilt_max: float = -np.inf
+    nees_sum: float = 0.0
+    without_covariance: bool = False    # an estimate without a covariance: no ANEES
+    with_terrain: bool = False          # an estimate with a support plane: terrain metrics
+    slope_max: float = -np.inf
+    height_squares: float = 0.0
+    height_count: int = 0
 
-    slope_window = estimates.t >= slope_from
-    estimated_normal = up_in_body(estimates.terrain_roll, estimates.terrain_pitch)
-    true_normal = up_in_body(true_at(truth.terrain_roll), true_at(truth.terrain_pitch))
-    slope_error = angle_between(estimated_normal, true_normal)[slope_window]
-    slope_error = slope_error[np.isfinite(slope_error)]
-    height_error = (estimates.body_height - true_at(truth.body_height))[estimates.t >= height_from]
-    height_rms = rms(height_error)
-    return {"slope_error_deg": float(np.degrees(slope_error.max())) if len(slope_error) else None,
-            "height_est_rmse_m": height_rms}
+    def add(self, estimates: EstimateArrays, truth_t: np.ndarray, truth_rotation: np.ndarray,
+            terrain_truth: TerrainTruth | None, scored_from: float, slope_from: float) -> None:
+        """Add the estimates scored from `scored_from` on against the truth (>= 2 steps; estimates
+        outside its time span take its first or last value)."""
+        scored = estimates.t >= scored_from
+        if estimates.tilt_cov is None and len(estimates.t):
+            self.without_covariance = True
+        if not scored.any():
+            return
+        self.scored += int(np.count_nonzero(scored))
+        true_rpy = roll_pitch_yaw(truth_at(estimates.t[scored], truth_t, truth_rotation))
+        error = np.column_stack([wrap(estimates.roll[scored] - true_rpy[:, 0]),
+                                 wrap(estimates.pitch[scored] - true_rpy[:, 1])])
+        tilt = angle_between(up_in_body(estimates.roll[scored], estimates.pitch[scored]),
+                             up_in_body(true_rpy[:, 0], true_rpy[:, 1]))
+        self.roll_squares, self.roll_count = _add_squares(self.roll_squares, self.roll_count, error[:, 0])
+        self.pitch_squares, self.pitch_count = _add_squares(self.pitch_squares, self.pitch_count, error[:, 1])
+        self.tilt_max = max(self.tilt_max, float(tilt.max()))
+        if estimates.tilt_cov is not None:
+            self.nees_sum += float(np.sum(nees_2d(error, estimates.tilt_cov[scored])))
+        if terrain_truth is not None and estimates.terrain_roll is not None:
+            self.with_terrain = True
+            self._add_terrain(estimates, terrain_truth, scored_from, slope_from)
+
+    def _add_terrain(self, estimates: EstimateArrays, truth: TerrainTruth, height_from: float,
+                     slope_from: float) -> None:
+        def true_at(values):
+            return np.interp(estimates.t, truth.t, values)
+
+        estimated_normal = up_in_body(estimates.terrain_roll, estimates.terrain_pitch)
+        true_normal = up_in_body(true_at(truth.terrain_roll), true_at(truth.terrain_pitch))
+        slope_error = angle_between(estimated_normal, true_normal)[estimates.t >= slope_from]
+        slope_error = slope_error[np.isfinite(slope_error)]
+        if len(slope_error):
+            self.slope_max = max(self.slope_max, float(slope_error.max()))
+        if estimates.body_height is not None:
+            height_error = (estimates.body_height - true_at(truth.body_height))[estimates.t >= height_from]
+            self.height_squares, self.height_count = _add_squares(self.height_squares, self.height_count,
+                                                                  height_error)
+
+    def metrics(self) -> dict:
+        """Keys METRIC_KEYS; all None when no estimate was scored."""
+        if not self.scored:
+            return {key: None for key in METRIC_KEYS}
+        return {
+            "roll_rmse_deg": _degrees_or_none(_root_mean(self.roll_squares, self.roll_count)),
+            "pitch_rmse_deg": _degrees_or_none(_root_mean(self.pitch_squares, self.pitch_count)),
+            "tilt_error_max_deg": float(np.degrees(self.tilt_max)),
+            "slope_error_deg": float(np.degrees(self.slope_max)) if np.isfinite(self.slope_max) else None,
+            "height_est_rmse_m": _root_mean(self.height_squares, self.height_count) if self.with_terrain else None,
+            "anees_tilt": None if self.without_covariance else self.nees_sum / self.scored,
+        }
+
+
+def _add_squares(total: float, count: int, values: np.ndarray) -> tuple[float, int]:
+    """The running sum of squares and count of the finite values."""
+    values = values[np.isfinite(values)]
+    return total + float(np.sum(values ** 2)), count + len(values)
+
+
+def _root_mean(squares: float, count: int) -> float | None:
+    return float(np.sqrt(squares / count)) if count else None
+
+
+def _degrees_or_none(value: float | None) -> float | None:
+    return None if value is None else float(np.degrees(value))
+
+
+class StreamingScore:
+    """`score` of a run whose truth and estimates arrive in chunks of any size, in memory bounded
+    by BLOCK_STEPS: the truth is cut into blocks of BLOCK_STEPS physics steps counted from the first,
+    whatever the chunks, and each block scores the estimates up to its last time, so that the
+    same run fed whole or step by step gives the same numbers.
+
+    Truth per step: time, world_from_body quaternion (x, y, z, w), body position, foot sphere
+    centres and contact flags (the support plane's inputs, see `support_plane_truth`)."""
+
+    BLOCK_STEPS = 4096
+
+    def __init__(self, foot_radius: float, skip: float = 1.0, slope_settle: float = 2.0):
+        self.foot_radius = foot_radius
+        self.skip = skip
+        self.slope_settle = slope_settle
+        self.sums = ScoreSums()
+        self.steps = 0
+        self._start: float | None = None
+        self._truth: list[tuple[np.ndarray, ...]] = []      # chunks of the block being filled
+        self._buffered = 0
+        self._estimates: list[EstimateArrays] = []          # not scored yet
+        self._previous: _TruthBlock | None = None           # the last block scored
+
+    def add_truth(self, t: np.ndarray, quaternion: np.ndarray, body_position: np.ndarray, feet: np.ndarray,
+                  contact: np.ndarray) -> None:
+        columns = tuple(np.asarray(column) for column in (t, quaternion, body_position, feet, contact))
+        if self._start is None and len(columns[0]):
+            self._start = float(columns[0][0])
+        while len(columns[0]):
+            room = self.BLOCK_STEPS - self._buffered
+            self._truth.append(tuple(column[:room] for column in columns))
+            self._buffered += min(room, len(columns[0]))
+            columns = tuple(column[room:] for column in columns)
+            if self._buffered == self.BLOCK_STEPS:
+                self._score_block()
+
+    def add_estimates(self, estimates: Sequence[Estimate] | EstimateArrays) -> None:
+        arrays = estimates if isinstance(estimates, EstimateArrays) else estimate_arrays(estimates)
+        if len(arrays.t):
+            self._estimates.append(arrays)
+
+    def metrics(self) -> dict:
+        """Keys METRIC_KEYS, over everything added: all None with fewer than two truth steps or no
+        estimate after the skipped first seconds."""
+        if self._buffered:
+            self._score_block()
+        if self._previous is not None and self._estimates:
+            self._score(_concatenate(self._estimates), self._previous)
+            self._estimates = []
+        return self.sums.metrics()
+
+    def _score_block(self) -> None:
+        t, quaternion, body_position, feet, contact = (np.concatenate(parts) for parts in zip(*self._truth))
+        self._truth, self._buffered = [], 0
+        self.steps += len(t)
+        if np.any(np.diff(t) <= 0) or (self._previous is not None and t[0] <= self._previous.t[-1]):
+            raise ValueError("the truth's times do not increase")
+        rotation = Rotation.from_quat(quaternion).as_matrix()
+        terrain = support_plane_truth(t, feet, contact, body_position, rotation, self.foot_radius)
+        block = _TruthBlock(t, rotation, terrain)
+        if self._previous is not None:
+            block = self._previous.last_step().followed_by(block)
+        if len(block.t) < 2:
+            self._previous = block
+            return
+        if self._estimates:
+            estimates = _concatenate(self._estimates)
+            now = estimates.t <= block.t[-1]
+            self._estimates = [_select(estimates, ~now)] if not now.all() else []
+            self._score(_select(estimates, now), block)
+        self._previous = block
+
+    def _score(self, estimates: EstimateArrays, block: "_TruthBlock") -> None:
+        if len(block.t) < 2:
+            return
+        self.sums.add(estimates, block.t, block.rotation, block.terrain, self._start + self.skip,
+                      self._start + self.slope_settle)
+
+
+@dataclass(frozen=True)
+class _TruthBlock:
+    t: np.ndarray
+    rotation: np.ndarray
+    terrain: TerrainTruth
+
+    def last_step(self) -> "_TruthBlock":
+        terrain = self.terrain
+        return _TruthBlock(self.t[-1:], self.rotation[-1:], TerrainTruth(
+            terrain.t[-1:], terrain.terrain_roll[-1:], terrain.terrain_pitch[-1:], terrain.body_height[-1:]))
+
+    def followed_by(self, other: "_TruthBlock") -> "_TruthBlock":
+        a, b = self.terrain, other.terrain
+        terrain = TerrainTruth(*(np.concatenate([x, y]) for x, y in zip(
+            (a.t, a.terrain_roll, a.terrain_pitch, a.body_height), (b.t, b.terrain_roll, b.terrain_pitch, b.body_height))))
+        return _TruthBlock(np.concatenate([self.t, other.t]), np.concatenate([self.rotation, other.rotation]), terrain)
+
+
+def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
+    """One EstimateArrays of several: a column missing from some (None) is NaN there; the
+    covariance is None if any lacks it."""
+    if len(blocks) == 1:
+        return blocks[0]
+
+    def column(name):
+        values = [getattr(block, name) for block in blocks]
+        if all(value is None for value in values):
+            return None
+        return np.concatenate([np.full(len(block.t), np.nan) if value is None else value
+                               for block, value in zip(blocks, values)])
+
+    covariances = [block.tilt_cov for block in blocks]
+    return EstimateArrays(np.concatenate([block.t for block in blocks]), column("roll"), column("pitch"),
+                          None if any(c is None for c in covariances) else np.concatenate(covariances),
+                          column("terrain_roll"), column("terrain_pitch"), column("body_height"))
+
+
+def _select(estimates: EstimateArrays, rows: np.ndarray) -> EstimateArrays:
+    return EstimateArrays(*(None if column is None else column[rows] for column in (
+        estimates.t, estimates.roll, estimates.pitch, estimates.tilt_cov, estimates.terrain_roll,
+        estimates.terrain_pitch, estimates.body_height)))
 
 
 def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarray, body_position: np.ndarray,

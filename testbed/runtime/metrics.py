@@ -1,4 +1,4 @@
-"""Per-run metrics, accumulated tick by tick from ground truth, written as JSON.
+"""Per-run metrics, accumulated tick by tick from ground truth in bounded memory, written as JSON.
 
 Keys are floats in SI units except where the key says `_deg`; null where a metric does not apply.
 """
@@ -15,7 +15,7 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
-from estimators.scoring import METRIC_KEYS, estimate_arrays, score, support_plane_truth
+from estimators.scoring import METRIC_KEYS, StreamingScore
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
 from testbed.world.terrain import Terrain
@@ -26,12 +26,15 @@ POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the firs
 
 
 class RunMetrics:
-    """Accumulates the truth-side metrics of a run tick by tick; `summary` adds the estimator's."""
+    """Accumulates the metrics of a run tick by tick, in memory independent of the run's length: the
+    ticks' truth is gathered in blocks of BLOCK_STEPS physics steps, each scored into running sums
+    (`PostureSums`, `estimators.scoring.StreamingScore`) and dropped; `summary` gives the metrics."""
+
+    BLOCK_STEPS = StreamingScore.BLOCK_STEPS
 
     def __init__(self, config: Config, weight: float, terrain: "Terrain"):
         self.config = config
         self.weight = weight
-        self.terrain = terrain
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
         self.fell = False
         self._normal_sum = 0.0
@@ -39,19 +42,11 @@ class RunMetrics:
         self.min_margin = np.inf
         self.start_xy: np.ndarray | None = None
         self.start_heading = 0.0
-        self._rows: list[tuple] = []      # per tick: t, quaternion, body position, feet, contact flags
-        self.estimates: list = []
-
-    def _columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Times (T,), quaternions (T, 4), body positions (T, 3), feet (T, 6, 3), contact flags (T, 6)."""
-        if not self._rows:
-            return np.empty(0), np.empty((0, 4)), np.empty((0, 3)), np.empty((0, 6, 3)), np.empty((0, 6), bool)
-        return tuple(np.array(column) for column in zip(*self._rows))
-
-    @property
-    def last_xy(self) -> np.ndarray:
-        """Body x, y at the latest tick (zeros before the first)."""
-        return self._rows[-1][2][:2].copy() if self._rows else np.zeros(2)
+        self.last_xy = np.zeros(2)
+        self._rows: list[tuple] = []      # the block being gathered, per tick: t, quaternion, body position, feet, contact
+        self._estimates: list = []        # estimates of those ticks
+        self.posture = PostureSums(config, terrain)
+        self.scoring = StreamingScore(config.robot.foot_radius)
 
     def add(self, tick: Tick) -> None:
         truth = tick.truth
@@ -67,7 +62,22 @@ class RunMetrics:
             self.min_margin = tick.stability_margin
         # One tuple per tick rather than five appends: this runs at every physics step.
         self._rows.append((t, tick.truth_quaternion, truth.body_position, truth.foot_positions, truth.foot_contact))
-        self.estimates.extend(tick.estimates)
+        if tick.estimates:
+            self._estimates.extend(tick.estimates)
+        if len(self._rows) == self.BLOCK_STEPS:
+            self._add_block()
+
+    def _add_block(self) -> None:
+        """Score the gathered ticks into the running sums and drop them."""
+        if not self._rows:
+            return
+        t, quaternion, position, feet, contact = (np.array(column) for column in zip(*self._rows))
+        self.last_xy = position[-1, :2].copy()
+        self.posture.add(t, quaternion, position)
+        if self._estimates:
+            self.scoring.add_estimates(self._estimates)
+        self.scoring.add_truth(t, quaternion, position, feet, contact)
+        self._rows, self._estimates = [], []
 
     def _mean_speed(self, distance: float, sim_time: float) -> float | None:
         """Over the time the robot was commanded to walk: after the start-up (still, then the
@@ -76,6 +86,7 @@ class RunMetrics:
         return distance / walking if walking > 0 and self.config.run.gait != "stand" else None
 
     def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
+        self._add_block()
         ratio = self._normal_sum / self._normal_count / self.weight if self._normal_count else None
         last_xy = self.last_xy
         displacement = last_xy - (self.start_xy if self.start_xy is not None else last_xy)
@@ -90,32 +101,47 @@ class RunMetrics:
             "target_error_m": float(np.linalg.norm(last_xy - target)) if target else None,
             "min_stability_margin_m": float(self.min_margin) if np.isfinite(self.min_margin) else None,
             "ik_limited_ticks": ik_limited_ticks,
-            **self.posture_metrics(),
+            **self.posture.metrics(),
             "realtime_factor": sim_time / wall_s if wall_s > 0 else None,
             "sim_steps": int(round(sim_time / self.config.run.time_step)),
             "sim_time_s": sim_time,
             "wall_s": wall_s,
         }
-        metrics.update(self.estimator_metrics())
+        metrics.update(estimator_metrics(self.config, self.scoring))
         return metrics
 
-    def posture_metrics(self) -> dict:
-        """True body tilt from level and body height above the terrain under the body centre, minus
-        the commanded height, after the first second and the start-up (whose calibration poses
-        tilt the body on purpose)."""
-        t, quaternions, positions, _, _ = self._columns()
-        keep = t >= max(POSTURE_SKIP, self.config.gait.startup_time)
+
+class PostureSums:
+    """True body tilt from level and body height above the terrain under the body centre, minus
+    the commanded height, after the first second and the start-up (whose calibration poses tilt
+    the body on purpose): running sums over blocks of steps."""
+
+    def __init__(self, config: Config, terrain: "Terrain"):
+        self.terrain = terrain
+        self.stance_height = config.robot.stance_height
+        self.skip_until = max(POSTURE_SKIP, config.gait.startup_time)
+        self.count = 0
+        self.tilt_squares = 0.0
+        self.tilt_max = -np.inf
+        self.height_squares = 0.0
+
+    def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray) -> None:
+        keep = t >= self.skip_until
         if not keep.any():
-            return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
+            return
         tilt = body_tilt_deg(quaternions[keep])
         position = positions[keep]
-        height = position[:, 2] - self.terrain.height(position[:, :2])
-        error = height - self.config.robot.stance_height
-        return {"tilt_rms_deg": float(np.sqrt(np.mean(tilt ** 2))), "tilt_max_deg": float(tilt.max()),
-                "height_error_rms_m": float(np.sqrt(np.mean(error ** 2)))}
+        error = position[:, 2] - self.terrain.height(position[:, :2]) - self.stance_height
+        self.count += len(tilt)
+        self.tilt_squares += float(np.sum(tilt ** 2))
+        self.tilt_max = max(self.tilt_max, float(tilt.max()))
+        self.height_squares += float(np.sum(error ** 2))
 
-    def estimator_metrics(self) -> dict:
-        return score_estimates(self.config, *self._columns(), self.estimates)
+    def metrics(self) -> dict:
+        if not self.count:
+            return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
+        return {"tilt_rms_deg": float(np.sqrt(self.tilt_squares / self.count)), "tilt_max_deg": self.tilt_max,
+                "height_error_rms_m": float(np.sqrt(self.height_squares / self.count))}
 
 
 def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:
@@ -124,20 +150,23 @@ def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(body_z_up, -1.0, 1.0)))
 
 
+def estimator_metrics(config: Config, scoring: StreamingScore) -> dict:
+    """The estimator's metrics (keys METRIC_KEYS), None without an estimator."""
+    if config.run.estimator == "none":
+        return {key: None for key in METRIC_KEYS}
+    return scoring.metrics()
+
+
 def score_estimates(config: Config, truth_t: np.ndarray, truth_quaternion: np.ndarray, body_position: np.ndarray,
-                    feet: np.ndarray, contact: np.ndarray, estimates: list) -> dict:
-    """Estimator metrics of a run from recorded numbers: the one function live runs and replays
-    both call, so a replay of the same estimates scores exactly the same. All None when there
-    is nothing to score: no estimator, no estimate, fewer than two truth steps, or a run shorter
-    than the skipped first second."""
-    if config.run.estimator == "none" or not estimates or len(truth_t) < 2:
-        return {key: None for key in METRIC_KEYS}
-    rotations = Rotation.from_quat(truth_quaternion).as_matrix()
-    terrain_truth = support_plane_truth(truth_t, feet, contact, body_position, rotations, config.robot.foot_radius)
-    try:
-        return score(estimate_arrays(estimates), truth_t, rotations, terrain_truth)
-    except ValueError:      # shorter than the skipped first second
-        return {key: None for key in METRIC_KEYS}
+                    feet: np.ndarray, contact: np.ndarray, estimates) -> dict:
+    """Estimator metrics of a run from recorded numbers, whole arrays: the same streaming scorer
+    the live run feeds block by block (`RunMetrics`), so a replay of the same estimates scores
+    exactly the same. All None when there is nothing to score: no estimator, no estimate, fewer
+    than two truth steps, or a run shorter than the skipped first second."""
+    scoring = StreamingScore(config.robot.foot_radius)
+    scoring.add_estimates(estimates)
+    scoring.add_truth(truth_t, truth_quaternion, body_position, feet, contact)
+    return estimator_metrics(config, scoring)
 
 
 def _clean(value):

@@ -1,0 +1,141 @@
+"""Metrics in bounded memory: the streaming scorer gives the same numbers whatever the chunks it is
+fed, the whole-array `score`'s within rounding, and a live run's metrics equal its replay's."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from datasets.recorder import McapRecorder
+from datasets.replay import replay
+from estimators.base import Estimate
+from estimators.scoring import METRIC_KEYS, StreamingScore, estimate_arrays, score, support_plane_truth
+from testbed.runtime import config as config_module
+from testbed.runtime.metrics import RunMetrics
+from testbed.runtime.runner import run
+
+STEPS = 2 * StreamingScore.BLOCK_STEPS + 1234
+FOOT_RADIUS = 0.02
+
+
+def synthetic_run(seed: int):
+    """Truth of a rocking, yawing body on four to six feet, and a noisy estimator with a
+    covariance and a support plane at every other step."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(STEPS) * 1e-3
+    roll, pitch, yaw = 0.1 * np.sin(2 * t), -0.05 + 0.03 * np.cos(3 * t), 0.3 * t
+    quaternion = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+    body = np.column_stack([0.1 * t, np.zeros_like(t), np.full_like(t, 0.12)])
+    angles = np.arange(6) * np.pi / 3
+    feet = body[:, None, :] + np.stack([0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(6, -0.1)], axis=1)
+    feet = feet + rng.normal(0.0, 0.002, feet.shape)
+    contact = rng.random((STEPS, 6)) < 0.8
+    estimates = []
+    for k in range(0, STEPS, 2):
+        covariance = np.diag(rng.uniform(1e-5, 4e-5, 3))
+        plane = {} if k % 4 else {"terrain_roll": rng.normal(0, 0.01), "terrain_pitch": rng.normal(0, 0.01),
+                                  "body_height": 0.1 + rng.normal(0, 0.002)}
+        estimates.append(Estimate(t[k] + 2e-4, quaternion[k], roll[k] + rng.normal(0, 0.005),
+                                  pitch[k] + rng.normal(0, 0.005), yaw[k], attitude_cov=covariance, **plane))
+    return (t, quaternion, body, feet, contact), estimates
+
+
+def scored_in_chunks(truth, estimates, chunk_sizes) -> dict:
+    stream = StreamingScore(FOOT_RADIUS)
+    start = 0
+    times = np.array([e.t for e in estimates])
+    for size in chunk_sizes:
+        stop = min(start + size, STEPS)
+        end_time = truth[0][stop - 1]
+        stream.add_estimates([e for e, te in zip(estimates, times) if truth[0][start] - 1e-3 < te <= end_time]
+                             if start else [e for e, te in zip(estimates, times) if te <= end_time])
+        stream.add_truth(*(column[start:stop] for column in truth))
+        start = stop
+        if start >= STEPS:
+            break
+    stream.add_estimates([e for e, te in zip(estimates, times) if te > truth[0][-1]])
+    return stream.metrics()
+
+
+@pytest.mark.parametrize("seed", [1, 7])
+def test_the_streaming_score_does_not_depend_on_the_chunks(seed):
+    truth, estimates = synthetic_run(seed)
+    whole = StreamingScore(FOOT_RADIUS)
+    whole.add_estimates(estimates)
+    whole.add_truth(*truth)
+    expected = whole.metrics()
+    assert all(expected[key] is not None for key in METRIC_KEYS)
+    rng = np.random.default_rng(seed)
+    for chunk_sizes in ([1] * STEPS, rng.integers(1, 3000, 100).tolist(), [StreamingScore.BLOCK_STEPS] * 3):
+        assert scored_in_chunks(truth, estimates, chunk_sizes) == expected
+
+
+@pytest.mark.parametrize("seed", [2, 11])
+def test_the_streaming_score_equals_the_whole_array_score(seed):
+    (t, quaternion, body, feet, contact), estimates = synthetic_run(seed)
+    stream = StreamingScore(FOOT_RADIUS)
+    stream.add_estimates(estimates)
+    stream.add_truth(t, quaternion, body, feet, contact)
+    rotation = Rotation.from_quat(quaternion).as_matrix()
+    whole = score(estimate_arrays(estimates), t, rotation,
+                  support_plane_truth(t, feet, contact, body, rotation, FOOT_RADIUS))
+    streamed = stream.metrics()
+    for key in METRIC_KEYS:
+        assert streamed[key] == pytest.approx(whole[key], rel=1e-12, abs=1e-12), key
+
+
+def test_nothing_to_score_gives_none():
+    truth, estimates = synthetic_run(3)
+    one_step = StreamingScore(FOOT_RADIUS)
+    one_step.add_estimates(estimates[:5])
+    one_step.add_truth(*(column[:1] for column in truth))
+    assert set(one_step.metrics().values()) == {None}
+    early = StreamingScore(FOOT_RADIUS)
+    early.add_estimates([e for e in estimates if e.t < 0.9])
+    early.add_truth(*truth)
+    assert set(early.metrics().values()) == {None}
+
+
+def test_truth_times_that_do_not_increase_are_refused():
+    (t, *rest), estimates = synthetic_run(4)
+    stream = StreamingScore(FOOT_RADIUS)
+    stream.add_estimates(estimates)
+    with pytest.raises(ValueError, match="increase"):
+        stream.add_truth(t[::-1].copy(), *rest)
+        stream.metrics()
+
+
+def test_run_metrics_keep_at_most_one_block_of_steps():
+    config = config_module.load(None, {"run": {"duration": 6.0, "gait": "tripod", "terrain": "flat", "estimator": "ekf"}})
+    kept = []
+
+    original = RunMetrics.add
+
+    def add(self, tick):
+        original(self, tick)
+        kept.append(len(self._rows))
+
+    RunMetrics.add = add
+    try:
+        outcome = run(config)
+    finally:
+        RunMetrics.add = original
+    assert len(kept) > StreamingScore.BLOCK_STEPS and max(kept) < StreamingScore.BLOCK_STEPS
+    assert outcome.metrics["tilt_rms_deg"] is not None and outcome.metrics["roll_rmse_deg"] is not None
+
+
+@pytest.mark.parametrize("estimator,seed", [("ekf", 5)])
+def test_a_live_run_and_its_replay_have_the_same_metrics(tmp_path, estimator, seed):
+    config = config_module.load(None, {"run": {"duration": 5.0, "gait": "tripod", "terrain": "rough",
+                                               "estimator": estimator, "seed": seed}})
+    path = tmp_path / "run.mcap"
+    outcome = run(config, McapRecorder(path))
+    assert outcome.error is None
+    replayed = replay(path, estimator).metrics
+    assert outcome.metrics["roll_rmse_deg"] is not None and outcome.metrics["slope_error_deg"] is not None
+    for key in METRIC_KEYS:
+        assert replayed[key] == outcome.metrics[key], key
+    assert not math.isnan(replayed["anees_tilt"])
