@@ -206,13 +206,6 @@ class Pilot(Controller):
             return float(estimate.position[0]), float(estimate.position[1]), estimate.yaw
         return self.odometry.pose
 
-    def _heading(self) -> float:
-        """The yaw from the start heading: the full-state estimator's, else the gyro heading's."""
-        estimate = self.latest_estimate
-        if estimate is not None and estimate.position is not None:
-            return estimate.yaw
-        return self.heading.yaw
-
     def _twist(self, t: float) -> Twist:
         """The body twist at time t, once walking."""
         gait = self.config.gait
@@ -222,9 +215,11 @@ class Pilot(Controller):
             if self.walker.arrived:
                 self.gait.stop()
             return Twist(command.vx * ramp, command.vy * ramp, command.wz * ramp)
-        # Hold the commanded heading against the feet's twisting on the ground.
+        # Hold the commanded heading against the feet's twisting on the ground, on the gyro heading:
+        # a full-state estimator's yaw follows its gyro bias, which slipping feet move (at a step's
+        # edge by several degrees within a second), and the loop would turn the robot on that.
         self.heading_reference += gait.turn_rate * ramp * self.dt
-        drift = self.heading_reference - self._heading()
+        drift = self.heading_reference - self.heading.yaw
         error = math.atan2(math.sin(drift), math.cos(drift))
         correction = min(max(gait.heading_gain * error, -gait.cruise_turn_rate), gait.cruise_turn_rate)
         return Twist(gait.speed * ramp, gait.lateral_speed * ramp, gait.turn_rate * ramp + correction)
