@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import abc
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,7 +90,6 @@ MAX_STEP = 0.01                # s: without encoder samples, the filter steps on
 # (BODY_RATE_STD * time without gyro)^2 per step: the body's unknown rate, which the feet correct.
 STUCK_GYRO_SAMPLES = 5
 BODY_RATE_STD = 1.0            # rad/s
-DISAGREEMENTS, DISAGREEMENT_SPAN = 3, 0.3    # most feet rejected this many times within this many s: a gyro fault
 ZERO = np.zeros(3)
 ZERO33 = np.zeros((3, 3))
 FLOAT64 = np.dtype(np.float64)
@@ -371,7 +369,6 @@ class FusionEstimator(Estimator):
         self._last_gyro: tuple[float, float, float] | None = None   # rad/s, the last reading
         self._gyro_repeats = 0               # how many times in a row it repeated
         self._without_gyro = 0.0             # s of this interval with the gyro missing or stuck
-        self._disagreements: deque[float] = deque(maxlen=DISAGREEMENTS)    # s, times most feet were rejected
 
     # -- filter core ---------------------------------------------------------------------------
 
@@ -503,21 +500,6 @@ class FusionEstimator(Estimator):
         self.pre.start(self.state.q, self.state.bias, self.state.accel_bias)
         self._output = None
 
-    def _feet_disagree(self, innovations: np.ndarray, feet: np.ndarray) -> None:
-        """Most feet were rejected. Once in a while a slip does that (rough ground: about every
-        1.5 s); DISAGREEMENTS times within DISAGREEMENT_SPAN mean the attitude runs away faster
-        than the corrections follow (a gyro fault: the bias test, fed by accepted corrections only,
-        sees little). Then the innovations, read as a rotation (median |y_i| / |p_i|), bound the
-        tilt error, and the bias and tilt open as for a step of that tilt over the span."""
-        self._disagreements.append(self.t)
-        if len(self._disagreements) < DISAGREEMENTS or self.t - self._disagreements[0] > DISAGREEMENT_SPAN:
-            return
-        self._disagreements.clear()
-        tilt = float(np.median(np.linalg.norm(innovations, axis=1) / np.linalg.norm(feet, axis=1)))
-        self.bias_steps.restart(self.t)
-        self.bias_steps.record_detection(self.t)
-        self._open_bias(np.array(rot.up_in_body(self.state.q)), tilt / DISAGREEMENT_SPAN, DISAGREEMENT_SPAN)
-
     def _open_bias(self, up: np.ndarray, drift_rate: float, elapsed: float) -> None:
         """The gyro bias moved, by at least the tilt's drift rate over the detection window
         (`elapsed` long): widen its uncertainty by that rate (bias_fault_std at least), and the
@@ -587,7 +569,6 @@ class FusionEstimator(Estimator):
                 restart = np.concatenate([restart, rejected])
                 if len(rejected) > len(used) // 2:
                     self._restart_velocity()
-                    self._feet_disagree(measured[rejected] - self.state.feet[rejected], self.state.feet[rejected])
         for leg in restart.tolist():
             self._restart_foot(leg, measured[leg])
         self.terrain.add_feet(sample.t, reading.feet, reading.measurable, self.state.q, self.params.foot_position_std,
