@@ -51,6 +51,7 @@ class FusionConfig:
     bias_fault_window: float           # s, span over which the tilt corrections are summed
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
     bias_fault_std: float              # rad/s, uncertainty added to the gyro bias when it did
+    use_gyro: bool = True              # False: the body rate from the accelerometer array alone (estimators/accel_array.py)
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",

@@ -58,6 +58,7 @@ from numba import njit
 from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
+from estimators.accel_array import AccelArrayFit, RateTracker
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.gating import chi2_quantile
@@ -65,7 +66,8 @@ from estimators.leg_odometry import StanceTracker
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
-from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
+from testbed.model.errors import ConfigError
 from testbed.model.kinematics import LegGeometry
 
 NUM_FEET = 6
@@ -91,6 +93,7 @@ MAX_STEP = 0.01                # s: without encoder samples, the filter steps on
 STUCK_GYRO_SAMPLES = 5
 BODY_RATE_STD = 1.0            # rad/s
 ZERO = np.zeros(3)
+I3 = np.eye(3)
 ZERO33 = np.zeros((3, 3))
 FLOAT64 = np.dtype(np.float64)
 
@@ -328,9 +331,11 @@ class FusionEstimator(Estimator):
 
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, geometry: LegGeometry,
                  foot_radius: float, gravity: float, imu_rotation: np.ndarray | None = None,
-                 imu_position: np.ndarray | None = None, startup_time: float = 0.0):
+                 imu_position: np.ndarray | None = None, startup_time: float = 0.0,
+                 accel_array: np.ndarray | None = None, imu_rate: float = 1000.0, accel_range: float = math.inf):
         super().__init__(imu_rotation)
         self.params = params
+        self.array = _rate_tracker(params, accel_array, imu_rate, accel_range)
         self.noise = FusionNoise.from_config(params)
         self.gravity = gravity
         self.foot_radius = foot_radius
@@ -369,6 +374,13 @@ class FusionEstimator(Estimator):
         self._last_gyro: tuple[float, float, float] | None = None   # rad/s, the last reading
         self._gyro_repeats = 0               # how many times in a row it repeated
         self._without_gyro = 0.0             # s of this interval with the gyro missing or stuck
+        # With an array: the gyro bias when the tracked rate took over from the gyro (None while
+        # the gyro is read), how long ago, the bias variance its error added since the last step,
+        # and the gyro's offset before its current run of repeated readings.
+        self._coast_bias: np.ndarray | None = None
+        self._coasted = 0.0
+        self._coast_variance = 0.0
+        self._offset_before_repeats = np.zeros(3)
 
     # -- filter core ---------------------------------------------------------------------------
 
@@ -407,6 +419,10 @@ class FusionEstimator(Estimator):
             if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
                     and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64:
                 return self._update_imu(sample.t, gyro, accel)
+        if type(sample) is AccelSample:
+            if self.array is not None:
+                self.array.add_member(sample.t, sample.index, sample.accel)
+            return None
         return super().update(sample)
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
@@ -414,11 +430,7 @@ class FusionEstimator(Estimator):
         if self.state is None:
             return self._initialise(t, gyro, accel)
         dt = t - self.t
-        if gyro is not None and self._stuck(gyro):
-            gyro = self.state.bias          # the body's rate is unknown: taken as zero, its variance added
-            self._without_gyro += max(dt, 0.0)
-        elif gyro is None and dt > 0:
-            self._without_gyro += dt
+        gyro = self._gyro_input(t, gyro, max(dt, 0.0))
         status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(
             self.pre.record, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
             accel is not None, max(dt, 0.0))
@@ -435,6 +447,47 @@ class FusionEstimator(Estimator):
         if nominal:
             return self._estimate(t)
         return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw)
+
+    def _gyro_input(self, t: float, gyro: np.ndarray | None, dt: float) -> np.ndarray | None:
+        """The rate the filter integrates for this sample (body frame, bias included), or None.
+        Without an array a stuck gyro reads as a still body and a missing one is held, the body's
+        unknown rate added to the attitude's variance. With one, a healthy gyro's detected jumps
+        are taken out (their estimates' error added to the bias variance); a stuck or missing gyro,
+        or none at all (use_gyro = false), gives way to the tracked rate plus the bias of the
+        moment it took over, and the bias state then carries the tracked rate's error, its variance
+        growing as `RateTracker.coasting_variance_rate`."""
+        stuck = gyro is not None and self._stuck(gyro)
+        array = self.array
+        if array is None:
+            if stuck:
+                gyro = self.state.bias
+            if stuck or gyro is None:
+                self._without_gyro += dt
+            return gyro
+        if self._gyro_repeats == 0:
+            self._offset_before_repeats[:] = array.offset
+        if gyro is not None and not stuck and self.params.use_gyro:
+            if self._coast_bias is not None:
+                self._stop_coasting(t, gyro)
+            array.follow(t, gyro - self.state.bias)
+            self._coast_variance += array.jump_variance
+            array.jump_variance = 0.0
+            return gyro - array.offset
+        if self._coast_bias is None:
+            # The repeated readings before the gyro counted as stuck may have passed for jumps.
+            array.offset[:] = self._offset_before_repeats
+            self._coast_bias = self.state.bias.copy()
+            self._coasted = 0.0
+        self._coasted += dt
+        self._coast_variance += array.coasting_variance_rate(self._coasted) * dt
+        return array.coast(t) + self._coast_bias
+
+    def _stop_coasting(self, t: float, gyro: np.ndarray) -> None:
+        """The gyro reads again: its bias is the one it had when the tracked rate took over (the
+        bias state carried the tracked rate's error meanwhile); the tracked rate restarts from it."""
+        self.state.bias[:] = self._coast_bias
+        self._coast_bias = None
+        self.array.anchor(t, gyro - self.state.bias)
 
     def _stuck(self, gyro: np.ndarray) -> bool:
         """Whether the reading has repeated exactly STUCK_GYRO_SAMPLES times in a row."""
@@ -469,7 +522,8 @@ class FusionEstimator(Estimator):
         fx, fy, fz, tx, ty, tz, turn_squared = interval_summary(self.pre.record, mean_force, self._body_turn)
         self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2 \
             + (BODY_RATE_STD * self._without_gyro)**2
-        self._without_gyro = 0.0
+        self._extra[BIAS] = self._coast_variance
+        self._without_gyro = self._coast_variance = 0.0
         still_force = self.still.add(dt, (tx, ty, tz), (fx, fy, fz))
         self._predict()
         if still_force is not None:
@@ -524,7 +578,7 @@ class FusionEstimator(Estimator):
         self.t = t
         if t >= self.learn_accel_bias_until:
             self._hold_accel_bias()
-        self.pre.remember(gyro, accel)
+        self.pre.remember(gyro if self.params.use_gyro else None, accel)
         self._new_interval()
         return self._estimate(t)
 
@@ -706,3 +760,20 @@ def roll_feet(P: np.ndarray, feet: np.ndarray, rolled: np.ndarray, fraction: flo
                 feet[leg, i] += fraction * shift
                 r = FOOT0 + 3 * leg + i
                 P[r, r] += (fraction_std * shift)**2
+
+
+def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: float,
+                  accel_range: float) -> RateTracker | None:
+    """The tracker of the accelerometer array at `positions` (body frame), whose members read up to
+    +-`accel_range`, or None without a usable array; use_gyro = false needs one."""
+    tracker = None
+    if positions is not None and len(positions):
+        try:
+            tracker = RateTracker(AccelArrayFit(positions), params.gyro_noise_density, params.accel_noise_density,
+                                  params.accel_bias_initial_std, imu_rate, accel_range)
+        except ValueError:
+            tracker = None
+    if tracker is None and not params.use_gyro:
+        raise ConfigError("estimators.ekf.use_gyro = false needs an accelerometer array spread along two "
+                          "directions at least (sensors.accel_array.layout = quad or custom)")
+    return tracker

@@ -98,18 +98,21 @@ class UkfEstimator(FusionEstimator):
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, sigma: UkfConfig,
                  geometry: LegGeometry, foot_radius: float, gravity: float,
                  imu_rotation: np.ndarray | None = None, imu_position: np.ndarray | None = None,
-                 startup_time: float = 0.0):
+                 startup_time: float = 0.0, accel_array: np.ndarray | None = None, imu_rate: float = 1000.0,
+                 accel_range: float = math.inf):
         points = MerweScaledSigmaPoints(ERROR_DIM, alpha=sigma.alpha, beta=sigma.beta, kappa=sigma.kappa)
         self.ukf = BatchUnscentedKalmanFilter(dim_x=ERROR_DIM, dim_z=3, dt=1e-3, hx=self._hx_specific_force,
                                               fx=self._fx, points=points)
         self.max_yaw_variance = math.radians(sigma.max_yaw_std_deg)**2
-        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time)
+        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time,
+                         accel_array, imu_rate, accel_range)
 
     @classmethod
     def from_config(cls, config) -> "UkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, config.estimators.ukf,
                    LegGeometry.from_config(config.robot), config.robot.foot_radius, config.run.gravity,
-                   imu_rotation(config), imu_position(config), config.gait.startup_time)
+                   imu_rotation(config), imu_position(config), config.gait.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
+                   config.sensors.imu.accel.range)
 
     @property
     def P(self) -> np.ndarray:
