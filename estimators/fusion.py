@@ -82,6 +82,13 @@ POSITION = slice(POSITION0, POSITION0 + 3)
 # The rolling fraction k between an anchored (0) and a rolling (1) contact, and its uncertainty:
 # on a 30 s flat walk k = 0 drifts 0.25 % (compliant) and 2.2 % (DART), k = 1 2.9 % and 0.6 %.
 ROLLING_FRACTION, ROLLING_STD = 0.25, 0.5
+# The velocity's error when the rolling assumption is wrong, per unit of velocity (either extreme,
+# wrong, biases it by 2 to 3 % of the distance walked): with k known to ROLLING_STD, the velocity
+# carries a scale error e of std ROLLING_STD * ROLLING_SHARE, the same over the walk, so the
+# position's error is e times the displacement since the start. The filter's white noises cannot
+# grow that way; the position is a leaf of the error state (no measurement reads it, nothing
+# depends on it), so the term e's covariance adds to the reported position covariance alone.
+ROLLING_SHARE = 0.025
 INITIAL_POSITION_STD = 1e-3    # m: the start pose defines the frame; the body settles on its feet by a millimetre
 
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
@@ -368,6 +375,9 @@ class FusionEstimator(Estimator):
         self._accel_rejected_since: float | None = None
         self._output: tuple | None = None
         self._pose_covariances: tuple = (None, None)      # position_cov, velocity_cov of the last step
+        self._start_position = np.zeros(3)   # m, world: the IMU point at the start
+        self._loads = np.zeros(NUM_FEET)      # N, the feet's latest normal forces
+        self._step_loads = np.zeros(NUM_FEET)  # N, as they were at the last encoder sample
         self._body_turn = np.zeros(3)        # rad, the gyro's rotation vector since the last encoder sample
         self._mean_force = np.zeros(3)       # m/s^2, the last interval's (`interval_summary`)
         self._rolled = np.zeros((NUM_FEET, 3))   # m, how far each tracked foot would roll on a sticking contact
@@ -574,6 +584,7 @@ class FusionEstimator(Estimator):
         self.state = NominalState(q, fields["bias"], fields["velocity"], fields["accel_bias"], fields["feet"],
                                   fields["accel_cross"], fields["position"])
         self.state.position[:] = rot.to_matrix(q) @ self.imu_position      # the body origin starts at 0
+        self._start_position = self.state.position.copy()
         self.P = initial_covariance(self.params, q)
         self.t = t
         if t >= self.learn_accel_bias_until:
@@ -599,6 +610,9 @@ class FusionEstimator(Estimator):
 
     def _update_feet(self, sample: FootSample) -> None:
         self.legs.add_contacts(sample.contact, sample.normal_forces)
+        loads = np.asarray(sample.normal_forces, dtype=float)
+        if loads.shape == (NUM_FEET,):
+            self._loads[:] = np.where(np.isfinite(loads), loads, self._loads)
 
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
@@ -612,6 +626,10 @@ class FusionEstimator(Estimator):
         if rolling is not None:
             self._body_turn[:] = 0.0
             roll_feet(self.P, self.state.feet, self._rolled, ROLLING_FRACTION, ROLLING_STD)
+        if self.params.foot_sink_per_newton > 0 and len(reading.tracked):
+            sink_feet(self.P, reading.tracked, self._loads - self._step_loads, np.array(rot.up_in_body(self.state.q)),
+                      self.params.foot_sink_per_newton)
+        self._step_loads[:] = self._loads
         measured, restart = reading.measured, reading.new
         if len(reading.tracked):
             used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0))
@@ -668,7 +686,12 @@ class FusionEstimator(Estimator):
         covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
         state = self.state
         rate = self.pre.record[0]["last_gyro"] - state.bias
-        self._pose_covariances = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
+        position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
+        if self.params.rolling_feet:
+            walked = state.position - self._start_position
+            walked[2] = 0.0         # the spheres roll along the ground
+            position_cov += (ROLLING_STD * ROLLING_SHARE)**2 * np.outer(walked, walked)
+        self._pose_covariances = position_cov, velocity_cov
         terrain = self.terrain
         if terrain.x is None:
             return (*output_covariances(self.P, state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
@@ -777,3 +800,17 @@ def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: 
         raise ConfigError("estimators.ekf.use_gyro = false needs an accelerometer array spread along two "
                           "directions at least (sensors.accel_array.layout = quad or custom)")
     return tracker
+
+
+# Compiled: it runs at every encoder sample.
+@njit(cache=True)
+def sink_feet(P: np.ndarray, legs: np.ndarray, load_change: np.ndarray, up: np.ndarray, sink_per_newton: float) -> None:
+    """A planted foot sinks into the ground as it takes load and rises as it sheds it: the tracked
+    `legs`' variances along `up` (body frame) grow by (sink_per_newton * load change)^2, in place."""
+    for k in range(legs.shape[0]):
+        leg = legs[k]
+        variance = (sink_per_newton * load_change[leg])**2
+        b = FOOT0 + 3 * leg
+        for i in range(3):
+            for j in range(3):
+                P[b + i, b + j] += variance * up[i] * up[j]

@@ -12,7 +12,7 @@ from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FEET_UPDATE, correct_feet, feet_correction
 from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, NOMINAL, POSITION, TILT_SUMS, BiasStepDetector,
                                NominalState, drift_statistic, foot_nis, horizontal_basis, inject, output_covariances,
-                               pose_covariances, roll_feet)
+                               pose_covariances, roll_feet, sink_feet)
 from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
 from estimators.terrain import TerrainFilter, plane_measurement
@@ -207,6 +207,21 @@ def test_rolling_feet_move_and_widen_only_the_rolled_feet():
     grown = np.zeros(ERROR_DIM)
     grown[FOOT0:FOOT0 + 18] = (0.5 * rolled.ravel())**2
     np.testing.assert_allclose(P_after, P + np.diag(grown), rtol=1e-12, atol=1e-15)
+
+
+def test_sinking_feet_widen_only_the_tracked_feet_along_up():
+    rng = np.random.default_rng(8)
+    P = random_covariance(rng, ERROR_DIM, 0.1)
+    up = rng.normal(size=3)
+    up /= np.linalg.norm(up)
+    load_change = rng.normal(0.0, 5.0, 6)
+    P_after = P.copy()
+    sink_feet(P_after, np.array([0, 3, 5]), load_change, up, 1e-4)
+    expected = P.copy()
+    for leg in (0, 3, 5):
+        block = slice(FOOT0 + 3 * leg, FOOT0 + 3 * leg + 3)
+        expected[block, block] += (1e-4 * load_change[leg])**2 * np.outer(up, up)
+    np.testing.assert_allclose(P_after, expected, rtol=1e-12, atol=1e-15)
 
 
 def test_drift_statistic_equals_the_numpy_products():
