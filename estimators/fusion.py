@@ -609,10 +609,8 @@ class FusionEstimator(Estimator):
         self._new_interval()
 
     def _update_feet(self, sample: FootSample) -> None:
-        self.legs.add_contacts(sample.contact, sample.normal_forces)
-        loads = np.asarray(sample.normal_forces, dtype=float)
-        if loads.shape == (NUM_FEET,):
-            self._loads[:] = np.where(np.isfinite(loads), loads, self._loads)
+        self.legs.add_contacts(sample.contact, sample.normal_forces)     # (checks the forces' shape)
+        self._loads = np.asarray(sample.normal_forces, dtype=float)
 
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
@@ -627,9 +625,9 @@ class FusionEstimator(Estimator):
             self._body_turn[:] = 0.0
             roll_feet(self.P, self.state.feet, self._rolled, ROLLING_FRACTION, ROLLING_STD)
         if self.params.foot_sink_per_newton > 0 and len(reading.tracked):
-            sink_feet(self.P, reading.tracked, self._loads - self._step_loads, np.array(rot.up_in_body(self.state.q)),
+            sink_feet(self.P, reading.tracked, self._loads, self._step_loads, rot.up_in_body(self.state.q),
                       self.params.foot_sink_per_newton)
-        self._step_loads[:] = self._loads
+        self._step_loads = self._loads
         measured, restart = reading.measured, reading.new
         if len(reading.tracked):
             used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0))
@@ -804,12 +802,17 @@ def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: 
 
 # Compiled: it runs at every encoder sample.
 @njit(cache=True)
-def sink_feet(P: np.ndarray, legs: np.ndarray, load_change: np.ndarray, up: np.ndarray, sink_per_newton: float) -> None:
+def sink_feet(P: np.ndarray, legs: np.ndarray, loads: np.ndarray, previous_loads: np.ndarray, up: tuple,
+              sink_per_newton: float) -> None:
     """A planted foot sinks into the ground as it takes load and rises as it sheds it: the tracked
-    `legs`' variances along `up` (body frame) grow by (sink_per_newton * load change)^2, in place."""
+    `legs`' variances along `up` (body frame) grow by (sink_per_newton * load change)^2, in place
+    (a load that is not finite changes nothing)."""
     for k in range(legs.shape[0]):
         leg = legs[k]
-        variance = (sink_per_newton * load_change[leg])**2
+        change = loads[leg] - previous_loads[leg]
+        if not math.isfinite(change):
+            continue
+        variance = (sink_per_newton * change)**2
         b = FOOT0 + 3 * leg
         for i in range(3):
             for j in range(3):

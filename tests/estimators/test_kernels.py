@@ -214,9 +214,10 @@ def test_sinking_feet_widen_only_the_tracked_feet_along_up():
     P = random_covariance(rng, ERROR_DIM, 0.1)
     up = rng.normal(size=3)
     up /= np.linalg.norm(up)
-    load_change = rng.normal(0.0, 5.0, 6)
+    loads, previous = rng.uniform(0.0, 10.0, 6), rng.uniform(0.0, 10.0, 6)
+    load_change = loads - previous
     P_after = P.copy()
-    sink_feet(P_after, np.array([0, 3, 5]), load_change, up, 1e-4)
+    sink_feet(P_after, np.array([0, 3, 5, 1]), loads, np.where(np.arange(6) == 1, np.nan, previous), tuple(up), 1e-4)
     expected = P.copy()
     for leg in (0, 3, 5):
         block = slice(FOOT0 + 3 * leg, FOOT0 + 3 * leg + 3)
