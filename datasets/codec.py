@@ -450,7 +450,10 @@ def decode_estimate(data: bytes) -> Estimate:
         terrain_roll=m.terrain_roll if m.HasField("terrain_roll") else None,
         terrain_pitch=m.terrain_pitch if m.HasField("terrain_pitch") else None,
         body_height=m.body_height if m.HasField("body_height") else None,
-        terrain_cov=_optional_matrix(m.terrain_cov))
+        terrain_cov=_optional_matrix(m.terrain_cov),
+        position=_array(m.position) if len(m.position) else None,
+        velocity=_array(m.velocity) if len(m.velocity) else None,
+        position_cov=_optional_matrix(m.position_cov), velocity_cov=_optional_matrix(m.velocity_cov))
 
 
 def decode_pose(data: bytes) -> tuple[np.ndarray, np.ndarray]:

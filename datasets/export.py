@@ -8,12 +8,14 @@ Every format reads the run through `datasets.dataset.Dataset.table`, one table p
   body as the static transform `body` -> `imu` on `/tf_static`), `/joint_states`
   sensor_msgs/msg/JointState (the encoders), `/truth/joint_states` (the true joint angles and
   rates), `/tf` tf2_msgs/msg/TFMessage (every link's frame, from the native `/tf`),
-  `/truth/pose` and `/estimate/pose` geometry_msgs/msg/PoseStamped. The estimators give attitude,
-  not position: `/estimate/pose` has the estimated orientation and, for its position, the
-  estimated height above the support plane on z (0 when the estimator gives none) and 0 on x, y;
-  so no nav_msgs/msg/Odometry is written.
+  `/truth/pose` and `/estimate/pose` geometry_msgs/msg/PoseStamped. `/estimate/pose` has the
+  estimated orientation and the estimated body position of a full-state estimator (`ekf`, `ukf`:
+  in the start frame, origin at the body's start position, x along its start heading); an
+  attitude-only estimator gives no position, and then the pose holds the estimated height above
+  the support plane on z (0 when the estimator gives none) and 0 on x, y.
 - `tum`: `truth.tum` and `estimate.tum`, one pose per line, `t x y z qx qy qz qw` (the TUM RGB-D
-  format evo reads); the estimate's position as in `/estimate/pose`.
+  format evo reads); the estimate's position as in `/estimate/pose` (start frame: compare with
+  evo's `--align_origin`).
 - `csv`: one `<topic>.csv` per time-series topic (slashes as underscores), the columns of
   `Dataset.table`.
 """
@@ -228,16 +230,20 @@ def _estimate_pose_messages(dataset: Dataset) -> Iterator[tuple]:
 
 
 def estimate_poses(dataset: Dataset) -> pandas.DataFrame:
-    """The estimates as poses: `t`, `position_x/y/z` (0, 0, the estimated height above the support
-    plane or 0) and `orientation_x/y/z/w` (the estimated attitude)."""
+    """The estimates as poses: `t`, `position_x/y/z` (the estimated body position, start frame; an
+    estimator without one: 0, 0, the estimated height above the support plane or 0) and
+    `orientation_x/y/z/w` (the estimated attitude)."""
     estimate = dataset.table(schemas.ESTIMATE.name) if schemas.ESTIMATE.name in dataset.topics else None
     if estimate is None:
         return pandas.DataFrame({name: [] for name in ("t", "position_x", "position_y", "position_z", "orientation_x",
                                                         "orientation_y", "orientation_z", "orientation_w")})
+    orientation = {f"orientation_{axis}": estimate[f"quaternion_{axis}"] for axis in "xyzw"}
+    if "position_x" in estimate.columns and estimate.position_x.notna().all():
+        return pandas.DataFrame({"t": estimate.t, **{f"position_{axis}": estimate[f"position_{axis}"] for axis in "xyz"},
+                                 **orientation})
     zeros = np.zeros(len(estimate))
     return pandas.DataFrame({"t": estimate.t, "position_x": zeros, "position_y": zeros,
-                             "position_z": estimate.body_height.fillna(0.0),
-                             **{f"orientation_{axis}": estimate[f"quaternion_{axis}"] for axis in "xyzw"}})
+                             "position_z": estimate.body_height.fillna(0.0), **orientation})
 
 
 # --- TUM -------------------------------------------------------------------------------------

@@ -28,6 +28,9 @@ class Estimate:
     Attitude is world_from_body with a z-up world; roll, pitch and yaw are ZYX Euler angles
     (R = Rz(yaw) Ry(pitch) Rx(roll), scipy's `as_euler("ZYX")` reversed). Roll and pitch are with
     respect to gravity; yaw is relative to the start heading and unobservable (its variance grows).
+    Position and velocity (full-state estimators only; None from attitude-only ones) are in the
+    start frame: origin at the body origin at start, x along the start heading, z up; like yaw they
+    are dead-reckoned, their variances growing with time and distance.
     Terrain roll and pitch are those of a body lying flat on the support plane with the robot's
     current heading; body height is the distance from the body origin O_b to that plane (the
     plane through the stance feet's contact points).
@@ -47,6 +50,10 @@ class Estimate:
     terrain_pitch: float | None = None         # rad
     body_height: float | None = None           # m
     terrain_cov: np.ndarray | None = None      # (3, 3) covariance of (terrain_roll, terrain_pitch, body_height)
+    position: np.ndarray | None = None         # (3,) m, body origin in the start frame (see below)
+    velocity: np.ndarray | None = None         # (3,) m/s, body origin's, start frame
+    position_cov: np.ndarray | None = None     # (3, 3) m^2
+    velocity_cov: np.ndarray | None = None     # (3, 3) (m/s)^2
 
 
 class Estimator(abc.ABC):

@@ -47,10 +47,12 @@ class FusionConfig:
     foot_position_std: float           # m, stance-foot position from the encoders (noise, compliance)
     foot_slip_std: float               # m/sqrt(s), random walk of a stance foot on the ground
     foot_creep_accel_std: float        # m/s^2, systematic acceleration of the stance feet's creep
+    foot_sink_per_newton: float        # m/N: how far a planted foot sinks per newton of load it takes (ground compliance)
     foot_gate_probability: float       # chi-square gate (3 dof) of a foot's innovation; beyond it, it slipped
     bias_fault_window: float           # s, span over which the tilt corrections are summed
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
     bias_fault_std: float              # rad/s, uncertainty added to the gyro bias when it did
+    use_gyro: bool = True              # False: the body rate from the accelerometer array alone (estimators/accel_array.py)
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
@@ -61,6 +63,7 @@ class FusionConfig:
         non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)
         non_negative("estimators.ekf.gyro_scale_std", self.gyro_scale_std)
         non_negative("estimators.ekf.foot_creep_accel_std", self.foot_creep_accel_std)
+        non_negative("estimators.ekf.foot_sink_per_newton", self.foot_sink_per_newton)
         non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
         non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
         positive("estimators.ekf still window", self.still_window, self.still_max_rate_dps, self.still_max_force_change,

@@ -5,6 +5,8 @@ bias Jacobians J_* of preintegration.py; Sola 2017 section 7.2 and Forster et al
     dtheta_j = D dtheta_i + J_R db_g
     dv_j     = D dv_i - g dt D U dtheta_i + (D J_v_g + [v_j]x J_R) db_g + D J_v_a db_a
     dp_j     = D (dp_i - dv_i dt + g dt^2 / 2 U dtheta_i - J_p_g db_g - J_p_a db_a) + [p_j]x J_R db_g
+    dr_j     = dr_i - R_i [v_i dt + dp]x dtheta_i + R_i dt dv_i + R_i (J_p_g db_g + J_p_a db_a)
+(R_i the attitude at step i, dp the preintegrated position increment; the world position r.)
 The accelerometer's cross-axis terms c are constants (identity rows). A foot's kinematics give
 H_p_i = I; a still window's mean specific force g u + b_a + g (c . u_xy) e_z gives H = [g [u]x, I,
 g e_z u_xy^T] on (dtheta, db_a, dc). After each correction the error is injected into the nominal
@@ -19,8 +21,8 @@ from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, THETA, FusionEstimator, foot_nis,
-                               inject_arrays, inject_in_place)
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, POSITION0, THETA, FusionEstimator,
+                               foot_nis, inject_arrays, inject_in_place)
 from estimators.preintegration import current_attitude
 from testbed.model.kinematics import LegGeometry
 
@@ -29,15 +31,21 @@ RESET_THRESHOLD = 1e-6    # rad: below it the reset changes P by under 1e-6 of i
 
 
 @njit(cache=True)
-def predict(record: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.ndarray, F: np.ndarray,
-            noise_rates: np.ndarray, extra_noise: np.ndarray) -> rot.Quaternion:
-    """Move velocity, feet (in place) and P over the interval preintegrated in `record` (a
-    preintegration.PREINTEGRATION record); returns the attitude. The process noise is diagonal:
+def predict(record: np.ndarray, velocity: np.ndarray, feet: np.ndarray, position: np.ndarray, P: np.ndarray,
+            F: np.ndarray, noise_rates: np.ndarray, extra_noise: np.ndarray) -> rot.Quaternion:
+    """Move velocity, feet, position (in place) and P over the interval preintegrated in `record`
+    (a preintegration.PREINTEGRATION record); returns the attitude. The process noise is diagonal:
     `noise_rates` per second of interval plus `extra_noise`."""
     p = record[0]
     dt, gravity = p.dt, p.gravity
-    up = np.array(rot.up_in_body((p.q0[0], p.q0[1], p.q0[2], p.q0[3])))
+    q0 = (p.q0[0], p.q0[1], p.q0[2], p.q0[3])
+    up = np.array(rot.up_in_body(q0))
     D = rot.to_matrix((p.dq[0], p.dq[1], p.dq[2], p.dq[3])).T
+    R0 = rot.to_matrix(q0)
+    body_shift = velocity * dt + p.dp
+    _fill_position_transition(F, R0, body_shift, p, dt)
+    position += rot.matvec3(R0, body_shift)
+    position[2] -= 0.5 * gravity * dt * dt
     shift = velocity * dt - 0.5 * gravity * dt * dt * up + p.dp
     velocity[:] = rot.matvec3(D, velocity - gravity * dt * up + p.dv)
     for leg in range(feet.shape[0]):
@@ -48,6 +56,17 @@ def predict(record: np.ndarray, velocity: np.ndarray, feet: np.ndarray, P: np.nd
     for i in range(P.shape[0]):
         P[i, i] += noise_rates[i] * dt + extra_noise[i]
     return current_attitude(record)
+
+
+@njit(cache=True)
+def _fill_position_transition(F: np.ndarray, R0: np.ndarray, body_shift: np.ndarray, p, dt: float) -> None:
+    """The world position's rows of the error-state transition (module docstring), in place: R0 the
+    attitude at the start of the interval, `body_shift` = v_i dt + dp (body frame)."""
+    r = POSITION0
+    F[r:r + 3, 0:3] = -rot.matmul3(R0, rot.skew(body_shift))
+    F[r:r + 3, 3:6] = rot.matmul3(R0, p.j_p_g)
+    F[r:r + 3, 6:9] = dt * R0
+    F[r:r + 3, 9:12] = rot.matmul3(R0, p.j_p_a)
 
 
 @njit(cache=True)
@@ -148,7 +167,7 @@ def correct_feet(P: np.ndarray, measured: np.ndarray, legs: np.ndarray, settings
     accepted, dx, tilt_cov = feet_correction(P, measured, x.feet, legs, u.variance, u.gate, u.consider_start,
                                              u.consider_stop)
     if accepted.any():
-        q = inject_arrays(q, dx, x.bias, x.velocity, x.accel_bias, x.accel_cross, x.feet)
+        q = inject_arrays(q, dx, x)
         s.correction[:] += dx[0:3]
         s.covariance[:] += tilt_cov
     return accepted, q
@@ -183,12 +202,13 @@ class EkfEstimator(FusionEstimator):
     def from_config(cls, config) -> "EkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, LegGeometry.from_config(config.robot),
                    config.robot.foot_radius, config.run.gravity, imu_rotation(config), imu_position(config),
-                   config.gait.startup_time)
+                   config.gait.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
+                   config.sensors.imu.accel.range)
 
     def _predict(self) -> None:
         state = self.state
-        state.q = predict(self.pre.record, state.velocity, state.feet, self.P, self._F, self._noise_rates,
-                          self._extra_noise())
+        state.q = predict(self.pre.record, state.velocity, state.feet, state.position, self.P, self._F,
+                          self._noise_rates, self._extra_noise())
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         ux, uy, uz = rot.up_in_body(self.state.q)
@@ -227,5 +247,5 @@ class EkfEstimator(FusionEstimator):
 
     def _inject(self, dx: np.ndarray, tilt_cov: np.ndarray) -> None:
         """Inject a correction dx into the nominal state, and record its attitude part."""
-        inject_in_place(self.state, dx)
+        inject_in_place(self.state, self.nominal, dx)
         self._record_tilt_correction(dx[THETA], tilt_cov)

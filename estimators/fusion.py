@@ -1,13 +1,25 @@
 """IMU + leg-kinematics fusion: the models shared by `ekf` and `ukf`, and their common front end.
 
-Nominal state: attitude q (world_from_body), gyro bias b_g, accelerometer bias b_a, the
-accelerometer z axis's cross-axis terms c (its reading per unit body x and y specific force), the
-IMU point's velocity v and the six foot positions p_i relative to the IMU point, all in the body
-frame (robocentric, so that yaw never enters). Error state (32): dx = [dtheta (local rotation
-vector), db_g, dv, db_a, dc, dp_1 ... dp_6] (Sola 2017, "Quaternion kinematics for the
-error-state Kalman filter", sections 5 and 6; foot states as in Bloesch et al. 2012, "State
-Estimation for Legged Robots - Consistent Fusion of Leg Kinematics and IMU", kept in the body
-frame).
+Nominal state: attitude q (world_from_body, yaw included), gyro bias b_g, accelerometer bias b_a,
+the accelerometer z axis's cross-axis terms c (its reading per unit body x and y specific force),
+the IMU point's velocity v and the six foot positions p_i relative to the IMU point, all in the
+body frame (robocentric: the measurements never see yaw or position), the IMU point's position r
+in the world (the frame of the start pose: origin at the body origin, x along the start heading,
+z up). Error state (35): dx = [dtheta (local rotation vector), db_g, dv, db_a, dc, dp_1 ... dp_6,
+dr] (Sola 2017, "Quaternion kinematics for the error-state Kalman filter", sections 5 and 6; foot
+states as in Bloesch et al. 2012, "State Estimation for Legged Robots - Consistent Fusion of Leg
+Kinematics and IMU", kept in the body frame). Position and yaw are unobservable: no measurement
+reads them; the feet correct them only through their correlations with the velocity, the tilt
+and the gyro bias, and their variances grow with the distance walked and the time.
+
+Rolling feet: a planted foot sphere whose contact sticks rolls as its tibia turns, its centre moving
+by s_i = dphi x (r n) (estimators/leg_odometry.py); a contact that anchors the point under the
+centre keeps the centre still. Which one the ground does is not known beforehand (DART's rigid
+contact rolls, the compliant model anchors), and either assumption, wrong, biases the velocity by
+2 to 3 % of the distance walked. The filter moves each tracked foot by k s_i with a fixed rolling
+fraction k = ROLLING_FRACTION, and adds the rest, (ROLLING_STD s_i)^2 per axis, to the foot's
+variance. (k as a state does not work: the feet's innovations pull it to about 0 on both
+contacts, through the start-up poses and while walking, although k = 1 walks straightest on DART.)
 
 The IMU drives the prediction (strapdown: the specific force is an input, not a measurement),
 summed between filter steps by `preintegration` (Forster et al. 2017). Over an interval dt from
@@ -15,6 +27,7 @@ step i to step j, with u = R^T e_z the up direction in the body frame:
     R_j  = R_i dR
     v_j  = dR^T (v_i - g u_i dt + dv)
     p_j  = dR^T (p_i - v_i dt + g u_i dt^2 / 2 - dp)     a stance foot is fixed in the world
+    r_j  = r_i + R_i (v_i dt + dp) - g e_z dt^2 / 2       (world frame)
     b_g, b_a                                             random walks
 Measurement, at every encoder sample (200 Hz):
     stance foot i    FK_i(encoders) - r_imu = p_i         (forward kinematics, eq. 2 of the paper)
@@ -45,6 +58,7 @@ from numba import njit
 from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
+from estimators.accel_array import AccelArrayFit, RateTracker
 from estimators.base import Estimate, Estimator
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.gating import chi2_quantile
@@ -52,20 +66,41 @@ from estimators.leg_odometry import StanceTracker
 from estimators.stillness import StillWindow
 from estimators.preintegration import ACCEPTED, REJECTED, Preintegration, imu_sample
 from estimators.terrain import TerrainFilter, grown_covariance
-from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
+from sensors.samples import AccelSample, EncoderSample, FootSample, ImuSample, Sample
+from testbed.model.errors import ConfigError
 from testbed.model.kinematics import LegGeometry
 
 NUM_FEET = 6
 FOOT0 = 14                     # error-state index of the first foot
-ERROR_DIM = FOOT0 + 3 * NUM_FEET
+POSITION0 = FOOT0 + 3 * NUM_FEET    # error-state index of the world position
+ERROR_DIM = POSITION0 + 3
 THETA, BIAS, VEL, ACCEL_BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 ACCEL_CROSS = slice(12, 14)    # the accelerometer z axis's sensitivity to the x and y specific force
 ACCEL_ERRORS = slice(9, 14)    # offset and cross-axis terms: the consider block after the start-up
-FEET = slice(FOOT0, ERROR_DIM)
+FEET = slice(FOOT0, POSITION0)
+POSITION = slice(POSITION0, POSITION0 + 3)
+# The rolling fraction k between an anchored (0) and a rolling (1) contact, and its uncertainty:
+# on a 30 s flat walk k = 0 drifts 0.25 % (compliant) and 2.2 % (DART), k = 1 2.9 % and 0.6 %.
+ROLLING_FRACTION, ROLLING_STD = 0.25, 0.5
+# The velocity's error when the rolling assumption is wrong, per unit of velocity (either extreme,
+# wrong, biases it by 2 to 3 % of the distance walked): with k known to ROLLING_STD, the velocity
+# carries a scale error e of std ROLLING_STD * ROLLING_SHARE, the same over the walk, so the
+# position's error is e times the displacement since the start. The filter's white noises cannot
+# grow that way; the position is a leaf of the error state (no measurement reads it, nothing
+# depends on it), so the term e's covariance adds to the reported position covariance alone.
+ROLLING_SHARE = 0.025
+INITIAL_POSITION_STD = 1e-3    # m: the start pose defines the frame; the body settles on its feet by a millimetre
 
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
 MAX_STEP = 0.01                # s: without encoder samples, the filter steps on its own this often
+# A gyro that repeats its reading exactly this many times in a row is stuck: its white noise (about
+# 5 LSB per sample) makes that improbable beyond 1e-12 otherwise. A stuck gyro's rate is taken as
+# zero, a missing reading is held (a short gap), and the attitude's variance grows by
+# (BODY_RATE_STD * time without gyro)^2 per step: the body's unknown rate, which the feet correct.
+STUCK_GYRO_SAMPLES = 5
+BODY_RATE_STD = 1.0            # rad/s
 ZERO = np.zeros(3)
+I3 = np.eye(3)
 ZERO33 = np.zeros((3, 3))
 FLOAT64 = np.dtype(np.float64)
 
@@ -78,7 +113,7 @@ def foot(leg: int) -> slice:
 # The arrays of a nominal state, fields by name: the EKF's state lives in one such record, which
 # its compiled feet update injects into (`FusionEstimator.nominal`).
 NOMINAL = np.dtype([("bias", "f8", 3), ("velocity", "f8", 3), ("accel_bias", "f8", 3), ("accel_cross", "f8", 2),
-                    ("feet", "f8", (NUM_FEET, 3))])
+                    ("feet", "f8", (NUM_FEET, 3)), ("position", "f8", 3)])
 
 # The bias step detector's sums (`BiasStepDetector.sums`).
 TILT_SUMS = np.dtype([("correction", "f8", 3), ("covariance", "f8", (3, 3))])
@@ -92,6 +127,7 @@ class NominalState:
     accel_bias: np.ndarray    # (3,) m/s^2
     feet: np.ndarray          # (6, 3) m, from the IMU point, body frame
     accel_cross: np.ndarray = field(default_factory=lambda: np.zeros(2))    # (2,) rad, z axis per x, y force
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))       # (3,) m, IMU point, world frame
 
 
 def apply_preintegration(state: NominalState, pre: Preintegration, gravity: float) -> tuple[NominalState, np.ndarray]:
@@ -101,8 +137,10 @@ def apply_preintegration(state: NominalState, pre: Preintegration, gravity: floa
     turn = rot.to_matrix(tuple(pre.dq))
     velocity = (state.velocity - gravity * dt * up + pre.dv) @ turn
     feet = (state.feet - (state.velocity * dt - 0.5 * gravity * dt * dt * up + pre.dp)) @ turn
+    position = state.position + rot.to_matrix(state.q) @ (state.velocity * dt + pre.dp)
+    position[2] -= 0.5 * gravity * dt * dt
     q = rot.normalized(rot.multiply(state.q, tuple(pre.dq)))
-    return NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross), turn
+    return NominalState(q, state.bias, velocity, state.accel_bias, feet, state.accel_cross, position), turn
 
 
 @dataclass(frozen=True)
@@ -127,7 +165,7 @@ class FusionNoise:
         velocity = (self.accel_density + VELOCITY_RANDOM_WALK**2) * dt
         rates = np.zeros(ERROR_DIM)
         rates[:12] = np.repeat([self.gyro * dt, self.bias_walk * dt, velocity, self.accel_bias_walk * dt], 3)
-        rates[FEET] = self.foot_slip * dt       # the cross-axis terms are constants
+        rates[FEET] = self.foot_slip * dt       # the cross-axis terms are constants; the position follows v
         return rates
 
 
@@ -143,6 +181,7 @@ def initial_covariance(params: FusionConfig, q: rot.Quaternion) -> np.ndarray:
     covariance[ACCEL_BIAS, ACCEL_BIAS] = params.accel_bias_initial_std**2 * np.eye(3)
     covariance[ACCEL_CROSS, ACCEL_CROSS] = params.accel_cross_axis_std**2 * np.eye(2)
     covariance[FEET, FEET] = params.foot_position_std**2 * np.eye(3 * NUM_FEET)    # restarted at touchdown
+    covariance[POSITION, POSITION] = INITIAL_POSITION_STD**2 * np.eye(3)
     return covariance
 
 
@@ -170,21 +209,22 @@ def foot_nis(P: np.ndarray, b: int, variance: float, y: np.ndarray) -> float:
     return z0 * z0 + z1 * z1 + z2 * z2
 
 
-def inject_in_place(state: NominalState, dx: np.ndarray) -> None:
-    """inject, modifying `state` and its arrays (the EKF's path)."""
-    state.q = inject_arrays(state.q, dx, state.bias, state.velocity, state.accel_bias, state.accel_cross, state.feet)
+def inject_in_place(state: NominalState, nominal: np.ndarray, dx: np.ndarray) -> None:
+    """inject, modifying `state`, whose arrays are views of the NOMINAL record `nominal` (the EKF's path)."""
+    state.q = inject_arrays(state.q, dx, nominal[0])
 
 
 # Compiled: the EKF's feet update calls it from its kernel.
 @njit(cache=True)
-def inject_arrays(q: rot.Quaternion, dx: np.ndarray, bias: np.ndarray, velocity: np.ndarray, accel_bias: np.ndarray,
-                  accel_cross: np.ndarray, feet: np.ndarray) -> rot.Quaternion:
-    """inject into the nominal state's arrays, in place; returns the new attitude."""
-    bias += dx[BIAS]
-    velocity += dx[VEL]
-    accel_bias += dx[ACCEL_BIAS]
-    accel_cross += dx[ACCEL_CROSS]
-    feet += dx[FEET].reshape(NUM_FEET, 3)
+def inject_arrays(q: rot.Quaternion, dx: np.ndarray, x) -> rot.Quaternion:
+    """inject into the nominal state's arrays, the NOMINAL record element x, in place; returns the
+    new attitude."""
+    x.bias[:] += dx[BIAS]
+    x.velocity[:] += dx[VEL]
+    x.accel_bias[:] += dx[ACCEL_BIAS]
+    x.accel_cross[:] += dx[ACCEL_CROSS]
+    x.feet[:] += dx[FEET].reshape(NUM_FEET, 3)
+    x.position[:] += dx[POSITION]
     return rot.rotate_by_vector(q, dx[0], dx[1], dx[2])
 
 
@@ -192,27 +232,57 @@ def inject(state: NominalState, dx: np.ndarray) -> NominalState:
     """x_true = x (+) dx (Sola 2017, section 6.2)."""
     return NominalState(rot.rotate_by_vector(state.q, dx[0], dx[1], dx[2]), state.bias + dx[BIAS],
                         state.velocity + dx[VEL], state.accel_bias + dx[ACCEL_BIAS],
-                        state.feet + dx[FEET].reshape(NUM_FEET, 3), state.accel_cross + dx[ACCEL_CROSS])
+                        state.feet + dx[FEET].reshape(NUM_FEET, 3), state.accel_cross + dx[ACCEL_CROSS],
+                        state.position + dx[POSITION])
 
 
+@register_jitable
 def horizontal_basis(up: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal rows spanning the plane perpendicular to `up`."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    first = np.cross(up, helper)
+    first = rot.matvec3(rot.skew(up), helper)
     first /= np.linalg.norm(first)
-    return np.array([first, np.cross(up, first)])
+    basis = np.empty((2, 3))
+    basis[0] = first
+    basis[1] = rot.matvec3(rot.skew(up), first)
+    return basis
+
+
+# Compiled: one call instead of a dozen numpy ones on 2x2 and 3x3 arrays.
+@njit(cache=True)
+def drift_statistic(sums: np.ndarray, q: rot.Quaternion) -> tuple[float, float]:
+    """(chi-square statistic, norm) of the horizontal part of the summed tilt corrections in the
+    TILT_SUMS record `sums`, at attitude q: d^T C^-1 d with d = B sum, C = B (sum K S K^T) B^T, B
+    the horizontal basis; the statistic is 0 when C is singular."""
+    s = sums[0]
+    basis = horizontal_basis(np.array(rot.up_in_body(q)))
+    drift = basis @ s.correction
+    covariance = basis @ s.covariance @ basis.T
+    determinant = covariance[0, 0] * covariance[1, 1] - covariance[0, 1] * covariance[1, 0]
+    norm = math.sqrt(drift[0] * drift[0] + drift[1] * drift[1])
+    if not determinant > 0:
+        return 0.0, norm
+    statistic = (covariance[1, 1] * drift[0] * drift[0] - (covariance[0, 1] + covariance[1, 0]) * drift[0] * drift[1]
+                 + covariance[0, 0] * drift[1] * drift[1]) / determinant
+    return statistic, norm
 
 
 class BiasStepDetector:
     """Sums the tilt corrections over a window: with a constant gyro bias they are white with the
     covariance sum of K S K^T; a chi-square excess of their horizontal part means the tilt keeps
     drifting one way, i.e. the bias changed (an innovation-based fault test, as the windowed
-    NIS test of Bar-Shalom et al. 2001, section 5.4, applied to the state corrections)."""
+    NIS test of Bar-Shalom et al. 2001, section 5.4, applied to the state corrections), at the end
+    of each window. The corrections' sum over the window is the rate the tilt drifted at: a lower
+    bound of the bias change. (Tested at every step instead, the sum raised false alarms on rough
+    ground, where the corrections are correlated, even at a 1e-15 probability or with a drift of
+    3 deg/s required, each throwing the tilt by degrees; at the window's end it raises none.)"""
 
     def __init__(self, window: float, probability: float):
         self.window = window
         self.threshold = chi2_quantile(probability, 2)
         self.detections = 0
+        self.first_detection: float | None = None    # s, times of the first and the latest detection
+        self.last_detection: float | None = None
         self._start: float | None = None
         # The window's sums of corrections and of their covariances, a TILT_SUMS record which
         # `add` adds to (compiled updates add to it themselves).
@@ -223,28 +293,42 @@ class BiasStepDetector:
         self._sum += correction
         self._covariance += covariance
 
-    def check(self, t: float, q: rot.Quaternion) -> bool:
-        """At the end of each window: True when the bias moved (q: the current attitude)."""
-        if self._start is None:
-            self._start = t
-        if t - self._start < self.window:
-            return False
-        basis = horizontal_basis(np.array(rot.up_in_body(q)))
-        drift = basis @ self._sum
-        covariance = basis @ self._covariance @ basis.T
-        moved = bool(np.linalg.det(covariance) > 0 and drift @ np.linalg.solve(covariance, drift) > self.threshold)
+    def restart(self, t: float) -> float:
+        """Start a new window at t; returns the length of the one it ends (0 before the first)."""
+        elapsed = 0.0 if self._start is None else t - self._start
         self._start = t
         self._sum[:] = 0.0
         self._covariance[:] = 0.0
-        self.detections += moved
-        return moved
+        return elapsed
+
+    def check(self, t: float, q: rot.Quaternion) -> tuple[float, float] | None:
+        """None, or when the bias moved (q: the current attitude): (the tilt's drift rate over the
+        window, rad/s; the window's length, s)."""
+        if self._start is None:
+            self._start = t
+        elapsed = t - self._start
+        if elapsed < self.window:
+            return None
+        statistic, drift = drift_statistic(self.sums, q)
+        moved = statistic > self.threshold
+        self.restart(t)
+        if not moved:
+            return None
+        self.record_detection(t)
+        return drift / elapsed, elapsed
+
+    def record_detection(self, t: float) -> None:
+        """Count a detection at t."""
+        self.detections += 1
+        self.last_detection = t
+        self.first_detection = t if self.first_detection is None else self.first_detection
 
 
 class FusionEstimator(Estimator):
     """Front end of `ekf` and `ukf`: preintegration, time keeping, gates, leg odometry, terrain
     and the output.
 
-    Subclasses hold the filter core: `state` (NominalState), `P` (30x30 error covariance) and the
+    Subclasses hold the filter core: `state` (NominalState), `P` (35x35 error covariance) and the
     three methods below, which record every applied update's tilt correction
     (`_record_tilt_correction`, or `bias_steps.sums` in a compiled update). The state's arrays
     are views of the NOMINAL record `nominal` unless a subclass replaces them (the UKF does). The
@@ -254,9 +338,11 @@ class FusionEstimator(Estimator):
 
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, geometry: LegGeometry,
                  foot_radius: float, gravity: float, imu_rotation: np.ndarray | None = None,
-                 imu_position: np.ndarray | None = None, startup_time: float = 0.0):
+                 imu_position: np.ndarray | None = None, startup_time: float = 0.0,
+                 accel_array: np.ndarray | None = None, imu_rate: float = 1000.0, accel_range: float = math.inf):
         super().__init__(imu_rotation)
         self.params = params
+        self.array = _rate_tracker(params, accel_array, imu_rate, accel_range)
         self.noise = FusionNoise.from_config(params)
         self.gravity = gravity
         self.foot_radius = foot_radius
@@ -288,8 +374,23 @@ class FusionEstimator(Estimator):
         self._extra = np.zeros(ERROR_DIM)
         self._accel_rejected_since: float | None = None
         self._output: tuple | None = None
+        self._pose_covariances: tuple = (None, None)      # position_cov, velocity_cov of the last step
+        self._start_position = np.zeros(3)   # m, world: the IMU point at the start
+        self._loads = np.zeros(NUM_FEET)      # N, the feet's latest normal forces
+        self._step_loads = np.zeros(NUM_FEET)  # N, as they were at the last encoder sample
         self._body_turn = np.zeros(3)        # rad, the gyro's rotation vector since the last encoder sample
         self._mean_force = np.zeros(3)       # m/s^2, the last interval's (`interval_summary`)
+        self._rolled = np.zeros((NUM_FEET, 3))   # m, how far each tracked foot would roll on a sticking contact
+        self._last_gyro: tuple[float, float, float] | None = None   # rad/s, the last reading
+        self._gyro_repeats = 0               # how many times in a row it repeated
+        self._without_gyro = 0.0             # s of this interval with the gyro missing or stuck
+        # With an array: the gyro bias when the tracked rate took over from the gyro (None while
+        # the gyro is read), how long ago, the bias variance its error added since the last step,
+        # and the gyro's offset before its current run of repeated readings.
+        self._coast_bias: np.ndarray | None = None
+        self._coasted = 0.0
+        self._coast_variance = 0.0
+        self._offset_before_repeats = np.zeros(3)
 
     # -- filter core ---------------------------------------------------------------------------
 
@@ -328,6 +429,10 @@ class FusionEstimator(Estimator):
             if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
                     and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64:
                 return self._update_imu(sample.t, gyro, accel)
+        if type(sample) is AccelSample:
+            if self.array is not None:
+                self.array.add_member(sample.t, sample.index, sample.accel)
+            return None
         return super().update(sample)
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
@@ -335,6 +440,7 @@ class FusionEstimator(Estimator):
         if self.state is None:
             return self._initialise(t, gyro, accel)
         dt = t - self.t
+        gyro = self._gyro_input(t, gyro, max(dt, 0.0))
         status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(
             self.pre.record, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
             accel is not None, max(dt, 0.0))
@@ -351,6 +457,54 @@ class FusionEstimator(Estimator):
         if nominal:
             return self._estimate(t)
         return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw)
+
+    def _gyro_input(self, t: float, gyro: np.ndarray | None, dt: float) -> np.ndarray | None:
+        """The rate the filter integrates for this sample (body frame, bias included), or None.
+        Without an array a stuck gyro reads as a still body and a missing one is held, the body's
+        unknown rate added to the attitude's variance. With one, a healthy gyro's detected jumps
+        are taken out (their estimates' error added to the bias variance); a stuck or missing gyro,
+        or none at all (use_gyro = false), gives way to the tracked rate plus the bias of the
+        moment it took over, and the bias state then carries the tracked rate's error, its variance
+        growing as `RateTracker.coasting_variance_rate`."""
+        stuck = gyro is not None and self._stuck(gyro)
+        array = self.array
+        if array is None:
+            if stuck:
+                gyro = self.state.bias
+            if stuck or gyro is None:
+                self._without_gyro += dt
+            return gyro
+        if self._gyro_repeats == 0:
+            self._offset_before_repeats[:] = array.offset
+        if gyro is not None and not stuck and self.params.use_gyro:
+            if self._coast_bias is not None:
+                self._stop_coasting(t, gyro)
+            array.follow(t, gyro - self.state.bias)
+            self._coast_variance += array.jump_variance
+            array.jump_variance = 0.0
+            return gyro - array.offset
+        if self._coast_bias is None:
+            # The repeated readings before the gyro counted as stuck may have passed for jumps.
+            array.offset[:] = self._offset_before_repeats
+            self._coast_bias = self.state.bias.copy()
+            self._coasted = 0.0
+        self._coasted += dt
+        self._coast_variance += array.coasting_variance_rate(self._coasted) * dt
+        return array.coast(t) + self._coast_bias
+
+    def _stop_coasting(self, t: float, gyro: np.ndarray) -> None:
+        """The gyro reads again: its bias is the one it had when the tracked rate took over (the
+        bias state carried the tracked rate's error meanwhile); the tracked rate restarts from it."""
+        self.state.bias[:] = self._coast_bias
+        self._coast_bias = None
+        self.array.anchor(t, gyro - self.state.bias)
+
+    def _stuck(self, gyro: np.ndarray) -> bool:
+        """Whether the reading has repeated exactly STUCK_GYRO_SAMPLES times in a row."""
+        reading = (gyro[0], gyro[1], gyro[2])
+        self._gyro_repeats = self._gyro_repeats + 1 if reading == self._last_gyro else 0
+        self._last_gyro = reading
+        return self._gyro_repeats >= STUCK_GYRO_SAMPLES
 
     def _accel_rejected(self, t: float, accel: np.ndarray) -> bool:
         """Count a specific force beyond the gate (integrated as gravity alone). Returns True when
@@ -376,7 +530,10 @@ class FusionEstimator(Estimator):
             return
         mean_force = self._mean_force
         fx, fy, fz, tx, ty, tz, turn_squared = interval_summary(self.pre.record, mean_force, self._body_turn)
-        self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2
+        self._extra[THETA] = (self.params.gyro_scale_std * math.sqrt(turn_squared))**2 \
+            + (BODY_RATE_STD * self._without_gyro)**2
+        self._extra[BIAS] = self._coast_variance
+        self._without_gyro = self._coast_variance = 0.0
         still_force = self.still.add(dt, (tx, ty, tz), (fx, fy, fz))
         self._predict()
         if still_force is not None:
@@ -386,8 +543,9 @@ class FusionEstimator(Estimator):
             # specific force. Walking accelerations last longer than a step, so averaging over the
             # step does not reduce their variance: a weak reference, for long leg outages.
             self._correct_specific_force(mean_force + self.state.accel_bias, self.noise.body_accel, self.accel_gate)
-        if self.bias_steps.check(self.t, self.state.q):
-            self._open_bias(np.array(rot.up_in_body(self.state.q)))
+        moved = self.bias_steps.check(self.t, self.state.q)
+        if moved is not None:
+            self._open_bias(np.array(rot.up_in_body(self.state.q)), *moved)
         if self.consider is None and self.t >= self.learn_accel_bias_until:
             self._hold_accel_bias()
         if new_interval:
@@ -406,11 +564,12 @@ class FusionEstimator(Estimator):
         self.pre.start(self.state.q, self.state.bias, self.state.accel_bias)
         self._output = None
 
-    def _open_bias(self, up: np.ndarray) -> None:
-        """The gyro bias moved: widen its uncertainty, and the tilt's by the drift it may have
-        caused over a detection window."""
-        step = self.params.bias_fault_std
-        drift = step * self.bias_steps.window
+    def _open_bias(self, up: np.ndarray, drift_rate: float, elapsed: float) -> None:
+        """The gyro bias moved, by at least the tilt's drift rate over the detection window
+        (`elapsed` long): widen its uncertainty by that rate (bias_fault_std at least), and the
+        tilt's by the drift such a change may have caused over the window."""
+        step = max(self.params.bias_fault_std, drift_rate)
+        drift = step * elapsed
         horizontal = np.eye(3) - np.outer(up, up)
         self.P[BIAS, BIAS] += step**2 * np.eye(3)
         self.P[THETA, THETA] += drift**2 * horizontal
@@ -423,12 +582,14 @@ class FusionEstimator(Estimator):
         self.nominal[0] = np.zeros((), dtype=NOMINAL)
         fields = self.nominal[0]
         self.state = NominalState(q, fields["bias"], fields["velocity"], fields["accel_bias"], fields["feet"],
-                                  fields["accel_cross"])
+                                  fields["accel_cross"], fields["position"])
+        self.state.position[:] = rot.to_matrix(q) @ self.imu_position      # the body origin starts at 0
+        self._start_position = self.state.position.copy()
         self.P = initial_covariance(self.params, q)
         self.t = t
         if t >= self.learn_accel_bias_until:
             self._hold_accel_bias()
-        self.pre.remember(gyro, accel)
+        self.pre.remember(gyro if self.params.use_gyro else None, accel)
         self._new_interval()
         return self._estimate(t)
 
@@ -448,7 +609,8 @@ class FusionEstimator(Estimator):
         self._new_interval()
 
     def _update_feet(self, sample: FootSample) -> None:
-        self.legs.add_contacts(sample.contact, sample.normal_forces)
+        self.legs.add_contacts(sample.contact, sample.normal_forces)     # (checks the forces' shape)
+        self._loads = np.asarray(sample.normal_forces, dtype=float)
 
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
@@ -456,10 +618,16 @@ class FusionEstimator(Estimator):
         self._step(new_interval=False)      # the next interval starts from the state the feet correct
         rolling = None
         if self.params.rolling_feet:
-            rolling = (self.state.feet, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
+            self._rolled[:] = 0.0
+            rolling = (self._rolled, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
         reading = self.legs.read(sample.positions, rolling)
         if rolling is not None:
             self._body_turn[:] = 0.0
+            roll_feet(self.P, self.state.feet, self._rolled, ROLLING_FRACTION, ROLLING_STD)
+        if self.params.foot_sink_per_newton > 0 and len(reading.tracked):
+            sink_feet(self.P, reading.tracked, self._loads, self._step_loads, rot.up_in_body(self.state.q),
+                      self.params.foot_sink_per_newton)
+        self._step_loads = self._loads
         measured, restart = reading.measured, reading.new
         if len(reading.tracked):
             used = self._correct_feet(reading.tracked, measured.take(reading.tracked, axis=0))
@@ -506,15 +674,28 @@ class FusionEstimator(Estimator):
         recomputed only there)."""
         if self._output is None:
             self._output = self._step_output(t, roll, pitch, yaw)
-        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output)
+        state = self.state
+        position, velocity = current_pose(self.pre.record, state.position, state.velocity, self.imu_position)
+        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output, position, velocity,
+                        *self._pose_covariances)
 
     def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
+        """The outputs recomputed at each step (they change little within one): the attitude
+        covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
+        state = self.state
+        rate = self.pre.record[0]["last_gyro"] - state.bias
+        position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
+        if self.params.rolling_feet:
+            walked = state.position - self._start_position
+            walked[2] = 0.0         # the spheres roll along the ground
+            position_cov += (ROLLING_STD * ROLLING_SHARE)**2 * np.outer(walked, walked)
+        self._pose_covariances = position_cov, velocity_cov
         terrain = self.terrain
         if terrain.x is None:
-            return (*output_covariances(self.P, self.state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
+            return (*output_covariances(self.P, state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
                     None, None, None, None)
         terrain_roll, terrain_pitch, height, covariance, growth = terrain.heading_output(yaw)
-        attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, self.state.bias, roll, pitch, covariance,
+        attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, state.bias, roll, pitch, covariance,
                                                                        growth, max(0.0, t - terrain.t))
         return attitude_cov, bias, bias_cov, terrain_roll, terrain_pitch, height, terrain_cov
 
@@ -543,3 +724,96 @@ def output_covariances(P: np.ndarray, bias: np.ndarray, roll: float, pitch: floa
     attitude_cov = rot.matmul3(rot.matmul3(euler, P[0:3, 0:3]), euler.T)
     return (attitude_cov, bias.copy(), np.ascontiguousarray(P[3:6, 3:6]),
             grown_covariance(terrain_cov, terrain_growth, elapsed, attitude_cov[:2, :2]))
+
+
+# Compiled: it runs at every IMU sample.
+@njit(cache=True)
+def current_pose(record: np.ndarray, position: np.ndarray, velocity: np.ndarray, lever: np.ndarray) -> tuple:
+    """(position, velocity) of the body origin in the world now, at the last sample of the
+    interval preintegrated in `record`, from the nominal IMU-point position r (world) and velocity v
+    (body) at its start (`apply_preintegration`'s model, and o = r - R l, v_o = R (v - w x l) with the
+    lever arm l and the body rate w, gyro minus bias)."""
+    p = record[0]
+    dt, gravity = p.dt, p.gravity
+    q0 = (p.q0[0], p.q0[1], p.q0[2], p.q0[3])
+    R0 = rot.to_matrix(q0)
+    up = np.array(rot.up_in_body(q0))
+    imu_point = position + rot.matvec3(R0, velocity * dt + p.dp)
+    imu_point[2] -= 0.5 * gravity * dt * dt
+    body_velocity = rot.matvec3(rot.to_matrix((p.dq[0], p.dq[1], p.dq[2], p.dq[3])).T,
+                                velocity - gravity * dt * up + p.dv)
+    rate = p.last_gyro - p.gyro_bias
+    R = rot.matmul3(R0, rot.to_matrix((p.dq[0], p.dq[1], p.dq[2], p.dq[3])))
+    return (imu_point - rot.matvec3(R, lever),
+            rot.matvec3(R, body_velocity - rot.matvec3(rot.skew(rate), lever)))
+
+
+# Compiled: it runs at every filter step.
+@njit(cache=True)
+def pose_covariances(P: np.ndarray, q: rot.Quaternion, velocity: np.ndarray, rate: np.ndarray,
+                     lever: np.ndarray) -> tuple:
+    """(position_cov, velocity_cov) of the body origin in the world (`current_pose`), from the
+    IMU point's velocity v (body), the body rate w and the lever arm l:
+        do = dr + R [l]x dtheta,     dv_o = R dv - R [v - w x l]x dtheta   (rate error neglected)
+    J P J^T over the (dtheta, dv, dr) blocks of P."""
+    R = rot.to_matrix(q)
+    body_velocity = velocity - rot.matvec3(rot.skew(rate), lever)
+    theta, vel, pos = P[0:3, 0:3], P[6:9, 6:9], P[POSITION0:POSITION0 + 3, POSITION0:POSITION0 + 3]
+    lever_turn = rot.matmul3(R, rot.skew(lever))
+    cross = rot.matmul3(lever_turn, np.ascontiguousarray(P[0:3, POSITION0:POSITION0 + 3]))
+    position_cov = pos + cross + cross.T + rot.matmul3(rot.matmul3(lever_turn, theta), lever_turn.T)
+    J_v, J_theta = R, -rot.matmul3(R, rot.skew(body_velocity))
+    mixed = rot.matmul3(rot.matmul3(J_v, np.ascontiguousarray(P[6:9, 0:3])), J_theta.T)
+    velocity_cov = (rot.matmul3(rot.matmul3(J_v, vel), J_v.T) + mixed + mixed.T
+                    + rot.matmul3(rot.matmul3(J_theta, theta), J_theta.T))
+    return position_cov, velocity_cov
+
+
+# Compiled: it runs at every encoder sample.
+@njit(cache=True)
+def roll_feet(P: np.ndarray, feet: np.ndarray, rolled: np.ndarray, fraction: float, fraction_std: float) -> None:
+    """The tracked feet roll by `fraction` (k) of `rolled` (s_i, zero for the others), in place,
+    and their variances grow by (fraction_std s_i)^2 per axis (module docstring)."""
+    for leg in range(NUM_FEET):
+        for i in range(3):
+            shift = rolled[leg, i]
+            if shift != 0.0:
+                feet[leg, i] += fraction * shift
+                r = FOOT0 + 3 * leg + i
+                P[r, r] += (fraction_std * shift)**2
+
+
+def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: float,
+                  accel_range: float) -> RateTracker | None:
+    """The tracker of the accelerometer array at `positions` (body frame), whose members read up to
+    +-`accel_range`, or None without a usable array; use_gyro = false needs one."""
+    tracker = None
+    if positions is not None and len(positions):
+        try:
+            tracker = RateTracker(AccelArrayFit(positions), params.gyro_noise_density, params.accel_noise_density,
+                                  params.accel_bias_initial_std, imu_rate, accel_range)
+        except ValueError:
+            tracker = None
+    if tracker is None and not params.use_gyro:
+        raise ConfigError("estimators.ekf.use_gyro = false needs an accelerometer array spread along two "
+                          "directions at least (sensors.accel_array.layout = quad or custom)")
+    return tracker
+
+
+# Compiled: it runs at every encoder sample.
+@njit(cache=True)
+def sink_feet(P: np.ndarray, legs: np.ndarray, loads: np.ndarray, previous_loads: np.ndarray, up: tuple,
+              sink_per_newton: float) -> None:
+    """A planted foot sinks into the ground as it takes load and rises as it sheds it: the tracked
+    `legs`' variances along `up` (body frame) grow by (sink_per_newton * load change)^2, in place
+    (a load that is not finite changes nothing)."""
+    for k in range(legs.shape[0]):
+        leg = legs[k]
+        change = loads[leg] - previous_loads[leg]
+        if not math.isfinite(change):
+            continue
+        variance = (sink_per_newton * change)**2
+        b = FOOT0 + 3 * leg
+        for i in range(3):
+            for j in range(3):
+                P[b + i, b + j] += variance * up[i] * up[j]

@@ -11,16 +11,31 @@ Only scoring reads truth. Definitions (all over the scored window t >= t_truth_s
 - anees_tilt: average over time of the NEES of (roll, pitch) with the estimated 2x2 covariance
   (2 degrees of freedom: 2 for a consistent filter); average it over runs and compare it with
   `anees_bounds`.
+Full-state estimators (those that give position and velocity), in the start frame (origin at the
+true body origin at the first truth step, x along its heading, z up: the estimators' frame):
+- position_rmse_m: evo's APE (translation part, no alignment beyond the start pose) of the
+  estimated body position, on the trajectory decimated to DECIMATION_HZ;
+- position_drift_pct: the last estimate's horizontal position error over the distance travelled
+  (evo's path length of the decimated true trajectory), in %;
+- velocity_rmse_mps: RMS of the norm of the body origin's velocity error (truth: the position's
+  finite differences between physics steps);
+- yaw_error_final_deg: the last estimate's yaw error (wrapped, absolute);
+- anees_pose: average over time of the NEES of position, velocity and (roll, pitch, yaw), each
+  with its own 3x3 covariance (the estimates carry no cross-covariances): expected 9 for a
+  consistent filter, compared with `anees_bounds(runs, dof=9)`.
 A metric is None when the estimator does not give the quantity or the truth lacks it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
+
+from evo.core import metrics as evo_metrics
+from evo.core.trajectory import PoseTrajectory3D
 
 from estimators.base import Estimate
 from estimators.gating import chi2_quantile
@@ -28,8 +43,11 @@ from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
 
 SAME_TIME = 1e-9         # s: the datasets' time resolution; sample and step times differ by rounding within it
-METRIC_KEYS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
-               "anees_tilt")
+ATTITUDE_KEYS = ("roll_rmse_deg", "pitch_rmse_deg", "tilt_error_max_deg", "slope_error_deg", "height_est_rmse_m",
+                 "anees_tilt")
+POSE_KEYS = ("position_drift_pct", "position_rmse_m", "velocity_rmse_mps", "yaw_error_final_deg", "anees_pose")
+METRIC_KEYS = ATTITUDE_KEYS + POSE_KEYS
+DECIMATION_HZ = 10.0      # the trajectory evo scores
 
 
 @dataclass(frozen=True)
@@ -41,6 +59,12 @@ class EstimateArrays:
     terrain_roll: np.ndarray | None     # (N,), NaN before the first support plane
     terrain_pitch: np.ndarray | None
     body_height: np.ndarray | None
+    yaw: np.ndarray | None = None
+    attitude_cov: np.ndarray | None = None  # (N, 3, 3) of (roll, pitch, yaw)
+    position: np.ndarray | None = None      # (N, 3), None if the estimator gives none
+    velocity: np.ndarray | None = None
+    position_cov: np.ndarray | None = None  # (N, 3, 3)
+    velocity_cov: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -58,14 +82,23 @@ def estimate_arrays(estimates: Sequence[Estimate]) -> EstimateArrays:
             return None
         return np.array([np.nan if v is None else v for v in values], dtype=float)
 
-    has_cov = bool(estimates) and all(e.attitude_cov is not None for e in estimates)
+    def stacked(name):
+        """Every estimate's array `name` stacked; None unless all have one."""
+        values = [getattr(e, name) for e in estimates]
+        if not values or any(v is None for v in values):
+            return None
+        return np.array(values, dtype=float)
+
+    attitude_cov = stacked("attitude_cov")
     return EstimateArrays(
         t=np.array([e.t for e in estimates], dtype=float),
         roll=np.array([e.roll for e in estimates], dtype=float),
         pitch=np.array([e.pitch for e in estimates], dtype=float),
-        tilt_cov=np.array([e.attitude_cov[:2, :2] for e in estimates]) if has_cov else None,
+        tilt_cov=None if attitude_cov is None else attitude_cov[:, :2, :2],
         terrain_roll=column("terrain_roll"), terrain_pitch=column("terrain_pitch"),
-        body_height=column("body_height"))
+        body_height=column("body_height"), yaw=np.array([e.yaw for e in estimates], dtype=float),
+        attitude_cov=attitude_cov, position=stacked("position"), velocity=stacked("velocity"),
+        position_cov=stacked("position_cov"), velocity_cov=stacked("velocity_cov"))
 
 
 def roll_pitch_yaw(rotations: np.ndarray) -> np.ndarray:
@@ -112,12 +145,146 @@ def nees_2d(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     return np.einsum("ni,nij,nj->n", error, np.linalg.inv(covariance), error)
 
 
+@dataclass(frozen=True)
+class StartFrame:
+    """The true body pose at the first truth step: the frame full-state estimates are given in."""
+    position: np.ndarray      # (3,) m, world
+    yaw: float                # rad
+
+    @classmethod
+    def of(cls, position: np.ndarray, rotation: np.ndarray) -> "StartFrame":
+        return cls(np.array(position, dtype=float), float(np.arctan2(rotation[1, 0], rotation[0, 0])))
+
+    def to_start(self, vectors: np.ndarray) -> np.ndarray:
+        """(N, 3) world vectors turned into the start frame (by -yaw)."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        return np.column_stack([c * vectors[:, 0] + s * vectors[:, 1], -s * vectors[:, 0] + c * vectors[:, 1],
+                                vectors[:, 2]])
+
+
+@dataclass(frozen=True)
+class PoseTruth:
+    """True body position and velocity at each truth step (velocity: finite differences, NaN
+    at a block's first step, which has no predecessor)."""
+    t: np.ndarray
+    position: np.ndarray      # (M, 3) m, world
+    velocity: np.ndarray      # (M, 3) m/s, world, mean over the step that ends at t
+
+    @classmethod
+    def of(cls, t: np.ndarray, position: np.ndarray) -> "PoseTruth":
+        velocity = np.full_like(position, np.nan)
+        velocity[1:] = np.diff(position, axis=0) / np.diff(t)[:, None]
+        return cls(t, position, velocity)
+
+    def at(self, t: np.ndarray, frame: StartFrame) -> tuple[np.ndarray, np.ndarray]:
+        """(position, velocity) at times t in the start frame: positions interpolated linearly,
+        the velocity of the step each time falls in (t clipped to the truth's span)."""
+        t = np.clip(t, self.t[0], self.t[-1])
+        position = np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
+        step = np.clip(np.searchsorted(self.t, t, side="left"), 1, len(self.t) - 1)
+        return frame.to_start(position - frame.position), frame.to_start(self.velocity[step])
+
+
+@dataclass
+class PoseSums:
+    """The running sums of the full-state metrics, and the trajectory decimated to DECIMATION_HZ
+    (the only part that grows with the run: 10 poses a second) that evo scores."""
+    scored: int = 0
+    without_pose: bool = False          # an estimate without a position: no pose metrics
+    velocity_squares: float = 0.0
+    velocity_count: int = 0
+    nees_sum: float = 0.0
+    nees_count: int = 0
+    final_error: np.ndarray | None = None       # (3,) m, of the last estimate
+    final_yaw_error: float | None = None        # rad
+    next_slot: int = 0                  # the next decimation slot (index of 1 / DECIMATION_HZ from the start)
+    decimated: list = field(default_factory=list)   # per block: t, estimated and true positions and quaternions
+
+    def add(self, estimates: EstimateArrays, scored: np.ndarray, attitude_error: np.ndarray,
+            true_rotation: np.ndarray, truth: PoseTruth, frame: StartFrame, start: float) -> None:
+        """Add the estimates `scored` (mask), given their (roll, pitch) errors and true rotations
+        (world_from_body, one per scored estimate)."""
+        if estimates.position is None or estimates.velocity is None:
+            self.without_pose = True
+            return
+        t = estimates.t[scored]
+        true_position, true_velocity = truth.at(t, frame)
+        position_error = estimates.position[scored] - true_position
+        velocity_error = estimates.velocity[scored] - true_velocity
+        true_yaw = roll_pitch_yaw(true_rotation)[:, 2] - frame.yaw
+        yaw_error = wrap(estimates.yaw[scored] - true_yaw)
+        self.scored += len(t)
+        self.velocity_squares, self.velocity_count = _add_squares(
+            self.velocity_squares, self.velocity_count, np.linalg.norm(velocity_error, axis=1))
+        self.final_error, self.final_yaw_error = position_error[-1], float(yaw_error[-1])
+        if estimates.position_cov is not None and estimates.velocity_cov is not None \
+                and estimates.attitude_cov is not None:
+            attitude = np.column_stack([attitude_error, yaw_error])
+            nees = (nees_2d(position_error, estimates.position_cov[scored])
+                    + nees_2d(velocity_error, estimates.velocity_cov[scored])
+                    + nees_2d(attitude, estimates.attitude_cov[scored]))
+            nees = nees[np.isfinite(nees)]
+            self.nees_sum += float(np.sum(nees))
+            self.nees_count += len(nees)
+        self._decimate(t, estimates, scored, true_position, true_rotation, frame, start)
+
+    def _decimate(self, t: np.ndarray, estimates: EstimateArrays, scored: np.ndarray, true_position: np.ndarray,
+                  true_rotation: np.ndarray, frame: StartFrame, start: float) -> None:
+        """Keep the first estimate of each 1 / DECIMATION_HZ slot from the start."""
+        slots = np.floor((t - start) * DECIMATION_HZ).astype(np.int64)
+        first = np.flatnonzero((slots >= self.next_slot) & np.concatenate([[True], slots[1:] != slots[:-1]]))
+        if not len(first):
+            return
+        self.next_slot = int(slots[first[-1]]) + 1
+        true_quaternion = (Rotation.from_euler("z", -frame.yaw) * Rotation.from_matrix(true_rotation[first])).as_quat()
+        euler = np.column_stack([estimates.yaw, estimates.pitch, estimates.roll])[scored][first]
+        estimated_quaternion = Rotation.from_euler("ZYX", euler).as_quat()
+        self.decimated.append((t[first], estimates.position[scored][first], true_position[first],
+                               estimated_quaternion, true_quaternion))
+
+    def metrics(self) -> dict:
+        if not self.scored or self.without_pose:
+            return {key: None for key in POSE_KEYS}
+        rmse, distance = trajectory_errors(*(np.concatenate(column) for column in zip(*self.decimated)))
+        horizontal = float(np.hypot(*self.final_error[:2]))
+        return {
+            "position_drift_pct": 100.0 * horizontal / distance if distance > 0 else None,
+            "position_rmse_m": rmse,
+            "velocity_rmse_mps": _root_mean(self.velocity_squares, self.velocity_count),
+            "yaw_error_final_deg": float(np.degrees(abs(self.final_yaw_error))),
+            "anees_pose": self.nees_sum / self.nees_count if self.nees_count else None,
+        }
+
+
+XYZW_TO_WXYZ = [3, 0, 1, 2]
+
+
+def trajectory_errors(t: np.ndarray, estimated: np.ndarray, true: np.ndarray, estimated_quaternion: np.ndarray,
+                      true_quaternion: np.ndarray) -> tuple[float | None, float]:
+    """(evo's APE RMSE of the translation, evo's path length of the true trajectory) of paired
+    poses (quaternions x, y, z, w) in one frame, without alignment; RMSE None under 2 poses."""
+    if len(t) < 2:
+        return None, 0.0
+    reference = PoseTrajectory3D(positions_xyz=true, orientations_quat_wxyz=true_quaternion[:, XYZW_TO_WXYZ],
+                                 timestamps=t)
+    estimate = PoseTrajectory3D(positions_xyz=estimated,
+                                orientations_quat_wxyz=estimated_quaternion[:, XYZW_TO_WXYZ], timestamps=t)
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((reference, estimate))
+    return float(ape.get_statistic(evo_metrics.StatisticsType.rmse)), float(reference.path_length)
+
+
 def score(estimates: EstimateArrays, truth_t: np.ndarray, truth_rotation: np.ndarray,
-          terrain_truth: TerrainTruth | None = None, skip: float = 1.0, slope_settle: float = 2.0) -> dict:
-    """The metrics of one run (see the module docstring); keys METRIC_KEYS, values float or None.
-    ValueError when no estimate is later than the skipped first `skip` seconds."""
+          terrain_truth: TerrainTruth | None = None, skip: float = 1.0, slope_settle: float = 2.0,
+          truth_position: np.ndarray | None = None) -> dict:
+    """The metrics of one run (see the module docstring); keys METRIC_KEYS, values float or None
+    (the full-state ones None without `truth_position`, (M, 3) m, world). ValueError when no
+    estimate is later than the skipped first `skip` seconds."""
     sums = ScoreSums()
-    sums.add(estimates, truth_t, truth_rotation, terrain_truth, truth_t[0] + skip, truth_t[0] + slope_settle)
+    pose = None
+    if truth_position is not None:
+        pose = PoseTruth.of(truth_t, truth_position), StartFrame.of(truth_position[0], truth_rotation[0])
+    sums.add(estimates, truth_t, truth_rotation, terrain_truth, truth_t[0] + skip, truth_t[0] + slope_settle, pose)
     if not sums.scored:
         raise ValueError(f"no estimate after the first {skip} s")
     return sums.metrics()
@@ -139,18 +306,22 @@ class ScoreSums:
     slope_max: float = -np.inf
     height_squares: float = 0.0
     height_count: int = 0
+    pose: PoseSums = field(default_factory=PoseSums)
 
     def add(self, estimates: EstimateArrays, truth_t: np.ndarray, truth_rotation: np.ndarray,
-            terrain_truth: TerrainTruth | None, scored_from: float, slope_from: float) -> None:
+            terrain_truth: TerrainTruth | None, scored_from: float, slope_from: float,
+            pose_truth: tuple[PoseTruth, StartFrame] | None = None) -> None:
         """Add the estimates scored from `scored_from` on against the truth (>= 2 steps; estimates
-        outside its time span take its first or last value)."""
+        outside its time span take its first or last value); with `pose_truth` (the true body
+        positions and the start frame) the full-state metrics too."""
         scored = estimates.t >= scored_from
         if estimates.tilt_cov is None and len(estimates.t):
             self.without_covariance = True
         if not scored.any():
             return
         self.scored += int(np.count_nonzero(scored))
-        true_rpy = roll_pitch_yaw(truth_at(estimates.t[scored], truth_t, truth_rotation))
+        true_rotation = truth_at(estimates.t[scored], truth_t, truth_rotation)
+        true_rpy = roll_pitch_yaw(true_rotation)
         error = np.column_stack([wrap(estimates.roll[scored] - true_rpy[:, 0]),
                                  wrap(estimates.pitch[scored] - true_rpy[:, 1])])
         tilt = angle_between(up_in_body(estimates.roll[scored], estimates.pitch[scored]),
@@ -163,6 +334,8 @@ class ScoreSums:
         if terrain_truth is not None and estimates.terrain_roll is not None:
             self.with_terrain = True
             self._add_terrain(estimates, terrain_truth, scored_from, slope_from)
+        if pose_truth is not None:
+            self.pose.add(estimates, scored, error, true_rotation, *pose_truth, scored_from)
 
     def _add_terrain(self, estimates: EstimateArrays, truth: TerrainTruth, height_from: float,
                      slope_from: float) -> None:
@@ -184,6 +357,9 @@ class ScoreSums:
         """Keys METRIC_KEYS; all None when no estimate was scored."""
         if not self.scored:
             return {key: None for key in METRIC_KEYS}
+        return {**self._attitude_metrics(), **self.pose.metrics()}
+
+    def _attitude_metrics(self) -> dict:
         return {
             "roll_rmse_deg": _degrees_or_none(_root_mean(self.roll_squares, self.roll_count)),
             "pitch_rmse_deg": _degrees_or_none(_root_mean(self.pitch_squares, self.pitch_count)),
@@ -230,12 +406,14 @@ class StreamingScore:
         self._buffered = 0
         self._estimates: list[EstimateArrays] = []          # not scored yet
         self._previous: _TruthBlock | None = None           # the last block scored
+        self._frame: StartFrame | None = None               # the true pose at the first step
 
     def add_truth(self, t: np.ndarray, quaternion: np.ndarray, body_position: np.ndarray, feet: np.ndarray,
                   contact: np.ndarray) -> None:
         columns = tuple(np.asarray(column) for column in (t, quaternion, body_position, feet, contact))
         if self._start is None and len(columns[0]):
             self._start = float(columns[0][0])
+            self._frame = StartFrame.of(columns[2][0], Rotation.from_quat(columns[1][0]).as_matrix())
         while len(columns[0]):
             room = self.BLOCK_STEPS - self._buffered
             self._truth.append(tuple(column[:room] for column in columns))
@@ -267,7 +445,7 @@ class StreamingScore:
             raise ValueError("the truth's times do not increase")
         rotation = Rotation.from_quat(quaternion).as_matrix()
         terrain = support_plane_truth(t, feet, contact, body_position, rotation, self.foot_radius)
-        block = _TruthBlock(t, rotation, terrain)
+        block = _TruthBlock(t, rotation, terrain, np.asarray(body_position, dtype=float))
         if self._previous is not None:
             block = self._previous.last_step().followed_by(block)
         if len(block.t) < 2:
@@ -284,7 +462,7 @@ class StreamingScore:
         if len(block.t) < 2:
             return
         self.sums.add(estimates, block.t, block.rotation, block.terrain, self._start + self.skip,
-                      self._start + self.slope_settle)
+                      self._start + self.slope_settle, (PoseTruth.of(block.t, block.position), self._frame))
 
 
 @dataclass(frozen=True)
@@ -292,17 +470,20 @@ class _TruthBlock:
     t: np.ndarray
     rotation: np.ndarray
     terrain: TerrainTruth
+    position: np.ndarray        # (M, 3) m, world
 
     def last_step(self) -> "_TruthBlock":
         terrain = self.terrain
         return _TruthBlock(self.t[-1:], self.rotation[-1:], TerrainTruth(
-            terrain.t[-1:], terrain.terrain_roll[-1:], terrain.terrain_pitch[-1:], terrain.body_height[-1:]))
+            terrain.t[-1:], terrain.terrain_roll[-1:], terrain.terrain_pitch[-1:], terrain.body_height[-1:]),
+            self.position[-1:])
 
     def followed_by(self, other: "_TruthBlock") -> "_TruthBlock":
         a, b = self.terrain, other.terrain
         terrain = TerrainTruth(*(np.concatenate([x, y]) for x, y in zip(
             (a.t, a.terrain_roll, a.terrain_pitch, a.body_height), (b.t, b.terrain_roll, b.terrain_pitch, b.body_height))))
-        return _TruthBlock(np.concatenate([self.t, other.t]), np.concatenate([self.rotation, other.rotation]), terrain)
+        return _TruthBlock(np.concatenate([self.t, other.t]), np.concatenate([self.rotation, other.rotation]), terrain,
+                           np.concatenate([self.position, other.position]))
 
 
 def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
@@ -318,16 +499,20 @@ def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
         return np.concatenate([np.full(len(block.t), np.nan) if value is None else value
                                for block, value in zip(blocks, values)])
 
-    covariances = [block.tilt_cov for block in blocks]
-    return EstimateArrays(np.concatenate([block.t for block in blocks]), column("roll"), column("pitch"),
-                          None if any(c is None for c in covariances) else np.concatenate(covariances),
-                          column("terrain_roll"), column("terrain_pitch"), column("body_height"))
+    def stacked(name):
+        values = [getattr(block, name) for block in blocks]
+        return None if any(value is None for value in values) else np.concatenate(values)
+
+    return EstimateArrays(**{name: column(name) if name in NAN_FILLED else stacked(name)
+                             for name in (f.name for f in fields(EstimateArrays))})
+
+
+NAN_FILLED = frozenset({"terrain_roll", "terrain_pitch", "body_height"})   # columns NaN where absent
 
 
 def _select(estimates: EstimateArrays, rows: np.ndarray) -> EstimateArrays:
-    return EstimateArrays(*(None if column is None else column[rows] for column in (
-        estimates.t, estimates.roll, estimates.pitch, estimates.tilt_cov, estimates.terrain_roll,
-        estimates.terrain_pitch, estimates.body_height)))
+    return EstimateArrays(**{f.name: None if getattr(estimates, f.name) is None else getattr(estimates, f.name)[rows]
+                             for f in fields(EstimateArrays)})
 
 
 def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarray, body_position: np.ndarray,

@@ -1,7 +1,7 @@
 """`ukf`: the models of fusion.py through filterpy's UnscentedKalmanFilter, to compare sigma points
 with the EKF's linearisation on the same data.
 
-filterpy's state `x` is the 32-dimensional error state dx = [dtheta, db_g, dv, db_a, dc, dp_1..6] about
+filterpy's state `x` is the 35-dimensional error state dx = [dtheta, db_g, dv, db_a, dc, dp_1..6, dr] about
 the nominal state held here. Each sigma point is injected into the nominal state (q Exp(dtheta),
 ...), moved over the preintegrated interval with its own biases (the increments corrected to first
 order with the preintegration's bias Jacobians, Forster et al. 2017 eq. 44) or measured, and turned
@@ -10,7 +10,7 @@ is injected into the nominal state and x is reset to zero (Sola 2017, section 6)
 points stay centred on it. The spread of the sigma points must stay below 180 deg about the
 unobservable yaw axis: the yaw variance is capped at `max_yaw_std_deg`.
 
-filterpy calls the process model once per sigma point (65 of them); `BatchUnscentedKalmanFilter`
+filterpy calls the process model once per sigma point (71 of them); `BatchUnscentedKalmanFilter`
 only replaces that loop by the same model evaluated on all points at once (`propagate_errors`,
 checked against the per-point `UkfEstimator._fx` in the tests). Everything else (sigma points,
 unscented transform, gain, update) is filterpy's. The stance feet are one stacked measurement per
@@ -28,8 +28,9 @@ from scipy.spatial.transform import Rotation
 from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
 from estimators.config import FusionConfig, TerrainEstimatorConfig, UkfConfig
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FEET, NUM_FEET, THETA, VEL, FusionEstimator,
-                               NominalState, apply_preintegration, foot, foot_nis, inject, reset_jacobian)
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FEET, NUM_FEET, POSITION, THETA, VEL,
+                               FusionEstimator, NominalState, apply_preintegration, foot, foot_nis, inject,
+                               reset_jacobian)
 from estimators.preintegration import Preintegration
 from testbed.model.kinematics import LegGeometry
 
@@ -39,7 +40,7 @@ def difference(state: NominalState, reference: NominalState) -> np.ndarray:
     dtheta = rot.log(rot.multiply(rot.conjugate(reference.q), state.q))
     return np.concatenate([dtheta, state.bias - reference.bias, state.velocity - reference.velocity,
                            state.accel_bias - reference.accel_bias, state.accel_cross - reference.accel_cross,
-                           (state.feet - reference.feet).ravel()])
+                           (state.feet - reference.feet).ravel(), state.position - reference.position])
 
 
 def corrected(pre: Preintegration, gyro_bias_error: np.ndarray, accel_bias_error: np.ndarray) -> Preintegration:
@@ -64,10 +65,14 @@ def propagate_errors(sigmas: np.ndarray, before: NominalState, after: NominalSta
     turn = step.as_matrix()
     dv = pre.dv + gyro_error @ pre.j_v_g.T + accel_error @ pre.j_v_a.T
     dp = pre.dp + gyro_error @ pre.j_p_g.T + accel_error @ pre.j_p_a.T
-    up = attitude.as_matrix()[:, 2, :]                        # third row of R: R^T e_z
+    attitude_matrix = attitude.as_matrix()
+    up = attitude_matrix[:, 2, :]                             # third row of R: R^T e_z
     moved_velocity = np.einsum("nji,nj->ni", turn, velocity - gravity * dt * up + dv)
     feet_shift = velocity * dt - 0.5 * gravity * dt * dt * up + dp
     moved_feet = (feet - feet_shift[:, None, :]) @ turn
+    moved_position = before.position + sigmas[:, POSITION] + np.einsum("nij,nj->ni", attitude_matrix,
+                                                                       velocity * dt + dp)
+    moved_position[:, 2] -= 0.5 * gravity * dt * dt
     out = np.empty_like(sigmas)
     out[:, THETA] = (Rotation.from_quat(after.q).inv() * attitude * step).as_rotvec()
     out[:, BIAS] = before.bias + gyro_error - after.bias
@@ -75,6 +80,7 @@ def propagate_errors(sigmas: np.ndarray, before: NominalState, after: NominalSta
     out[:, ACCEL_BIAS] = before.accel_bias + accel_error - after.accel_bias
     out[:, ACCEL_CROSS] = before.accel_cross + sigmas[:, ACCEL_CROSS] - after.accel_cross
     out[:, FEET] = (moved_feet - after.feet).reshape(count, -1)
+    out[:, POSITION] = moved_position - after.position
     return out
 
 
@@ -92,18 +98,21 @@ class UkfEstimator(FusionEstimator):
     def __init__(self, params: FusionConfig, terrain: TerrainEstimatorConfig, sigma: UkfConfig,
                  geometry: LegGeometry, foot_radius: float, gravity: float,
                  imu_rotation: np.ndarray | None = None, imu_position: np.ndarray | None = None,
-                 startup_time: float = 0.0):
+                 startup_time: float = 0.0, accel_array: np.ndarray | None = None, imu_rate: float = 1000.0,
+                 accel_range: float = math.inf):
         points = MerweScaledSigmaPoints(ERROR_DIM, alpha=sigma.alpha, beta=sigma.beta, kappa=sigma.kappa)
         self.ukf = BatchUnscentedKalmanFilter(dim_x=ERROR_DIM, dim_z=3, dt=1e-3, hx=self._hx_specific_force,
                                               fx=self._fx, points=points)
         self.max_yaw_variance = math.radians(sigma.max_yaw_std_deg)**2
-        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time)
+        super().__init__(params, terrain, geometry, foot_radius, gravity, imu_rotation, imu_position, startup_time,
+                         accel_array, imu_rate, accel_range)
 
     @classmethod
     def from_config(cls, config) -> "UkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, config.estimators.ukf,
                    LegGeometry.from_config(config.robot), config.robot.foot_radius, config.run.gravity,
-                   imu_rotation(config), imu_position(config), config.gait.startup_time)
+                   imu_rotation(config), imu_position(config), config.gait.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
+                   config.sensors.imu.accel.range)
 
     @property
     def P(self) -> np.ndarray:

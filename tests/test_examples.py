@@ -16,7 +16,8 @@ ESTIMATOR = "my_estimator:MyComplementary"
 
 
 def run_cli(arguments: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(EXAMPLES))
+    # the project's own root too: the commands run the code under test, not an installed copy
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(EXAMPLES), str(EXAMPLES.parent)]))
     result = subprocess.run(TESTBED + arguments, capture_output=True, text=True, timeout=600, env=env, cwd=cwd)
     assert result.returncode == 0, result.stderr
     return result

@@ -1,6 +1,7 @@
 """Walk to a target: turn towards it, walk, slow down near it, stop on it.
 
-It steers on the leg-odometry pose (never ground truth). The speed falls in proportion to the
+It steers on the robot's own pose (never ground truth): a full-state estimator's, else the leg
+odometry's. The speed falls in proportion to the
 distance over the last two strides, down to a crawl at the tolerance; inside the tolerance the
 robot keeps crawling while the target is still ahead and stops once it is abeam or behind, so that
 it stops at the point nearest the target, not at the near edge of the tolerance disc (which left

@@ -213,16 +213,26 @@ class Pilot(Controller):
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(self.encoder_positions, stance, heading.yaw)
 
+    def _pose(self) -> tuple[float, float, float]:
+        """The planar pose (x, y, yaw) in the start frame: the estimator's when it gives a position
+        (a full-state estimator), else the leg odometry's with the gyro heading."""
+        estimate = self.latest_estimate
+        if estimate is not None and estimate.position is not None:
+            return float(estimate.position[0]), float(estimate.position[1]), estimate.yaw
+        return self.odometry.pose
+
     def _twist(self, t: float) -> Twist:
         """The body twist at time t, once walking."""
         gait = self.config.gait
         ramp = min(1.0, (t - self.startup_time) / gait.start_ramp) if gait.start_ramp > 0 else 1.0
         if self.walker is not None:
-            command = self.walker.command(self.odometry.pose)
+            command = self.walker.command(self._pose())
             if self.walker.arrived:
                 self.gait.stop()
             return Twist(command.vx * ramp, command.vy * ramp, command.wz * ramp)
-        # Hold the commanded heading against the feet's twisting on the ground.
+        # Hold the commanded heading against the feet's twisting on the ground, on the gyro heading:
+        # a full-state estimator's yaw follows its gyro bias, which slipping feet move (at a step's
+        # edge by several degrees within a second), and the loop would turn the robot on that.
         self.heading_reference += gait.turn_rate * ramp * self.dt
         drift = self.heading_reference - self.heading.yaw
         error = math.atan2(math.sin(drift), math.cos(drift))

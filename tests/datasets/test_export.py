@@ -81,7 +81,7 @@ def test_tum_trajectories_give_evo_the_attitude_error_we_compute(run, tmp_path):
     poses, estimates = run.table("/truth/pose"), run.table("/estimate")
     for table in (poses, estimates):        # the pose's t is its nanosecond stamp, the estimate's the exact time
         table["t_ns"] = np.round(table.pop("t").to_numpy() * 1e9).astype(np.int64)
-    merged = pandas.merge(poses, estimates, on="t_ns")
+    merged = pandas.merge(poses, estimates, on="t_ns", suffixes=("", "_estimated"))
     true = Rotation.from_quat(merged[[f"orientation_{a}" for a in "xyzw"]].to_numpy())
     estimated = Rotation.from_quat(merged[[f"quaternion_{a}" for a in "xyzw"]].to_numpy())
     angles = np.degrees((true.inv() * estimated).magnitude())
@@ -89,6 +89,14 @@ def test_tum_trajectories_give_evo_the_attitude_error_we_compute(run, tmp_path):
     assert evo_rmse == pytest.approx(np.sqrt(np.mean(angles ** 2)), rel=1e-6)
     assert 0 < evo_rmse < 5.0
     np.testing.assert_allclose(truth.positions_xyz, merged[[f"position_{a}" for a in "xyz"]].to_numpy(), atol=1e-15)
+    # the filter's own body position (start frame): evo, the origins aligned, scores it against the truth
+    np.testing.assert_allclose(estimate.positions_xyz, merged[[f"position_{a}_estimated" for a in "xyz"]].to_numpy(),
+                               atol=1e-15)
+    translation = metrics.APE(metrics.PoseRelation.translation_part)
+    truth.align_origin(estimate)
+    translation.process_data((truth, estimate))
+    walked = float(np.linalg.norm(truth.positions_xyz[-1, :2] - truth.positions_xyz[0, :2]))
+    assert walked > 0.02 and translation.get_statistic(metrics.StatisticsType.max) < 0.01     # measured 4 mm
 
 
 def test_csv_tables_read_back_equal_to_the_dataset_tables(run, tmp_path):

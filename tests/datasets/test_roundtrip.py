@@ -36,7 +36,8 @@ def assert_same_sample(read, written) -> None:
 def assert_same_estimate(read, written) -> None:
     for name in ("t", "roll", "pitch", "yaw", "terrain_roll", "terrain_pitch", "body_height"):
         assert getattr(read, name) == getattr(written, name), name
-    for name in ("quaternion", "attitude_cov", "gyro_bias", "gyro_bias_cov", "terrain_cov"):
+    for name in ("quaternion", "attitude_cov", "gyro_bias", "gyro_bias_cov", "terrain_cov", "position", "velocity",
+                 "position_cov", "velocity_cov"):
         a, b = getattr(read, name), getattr(written, name)
         assert (a is None) == (b is None), name
         if a is not None:
@@ -62,6 +63,7 @@ def test_every_estimate_comes_back_bit_for_bit(ekf_run):
     for a, b in zip(read, written):
         assert_same_estimate(a, b)
     assert any(e.terrain_roll is None for e in read) and any(e.terrain_roll is not None for e in read)
+    assert all(e.position.shape == (3,) and e.velocity_cov.shape == (3, 3) for e in read)     # the full state
 
 
 def test_estimates_without_covariance_come_back_as_none(tmp_path):
@@ -71,7 +73,7 @@ def test_estimates_without_covariance_come_back_as_none(tmp_path):
     record(path, config, ticks)
     written = [estimate for tick in ticks for estimate in tick.estimates]
     read = read_recording(path).estimates()
-    assert len(read) == len(written) and written[0].attitude_cov is None
+    assert len(read) == len(written) and written[0].attitude_cov is None and read[0].position is None
     for a, b in zip(read, written):
         assert_same_estimate(a, b)
 

@@ -10,8 +10,9 @@ from testbed.model import spatial as rot
 from estimators.base import Estimator
 from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FEET_UPDATE, correct_feet, feet_correction
-from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, NOMINAL, TILT_SUMS, BiasStepDetector, NominalState,
-                               foot_nis, inject, output_covariances)
+from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, NOMINAL, POSITION, TILT_SUMS, BiasStepDetector,
+                               NominalState, drift_statistic, foot_nis, horizontal_basis, inject, output_covariances,
+                               pose_covariances, roll_feet, sink_feet)
 from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
 from estimators.terrain import TerrainFilter, plane_measurement
@@ -52,7 +53,7 @@ def test_compiled_feet_update_equals_the_readable_one(consider):
         nominal, q = random_nominal(rng), rot.quaternion_from_euler(*rng.normal(0.0, 0.3, 3))
         x = nominal[0]
         state = NominalState(q, x["bias"].copy(), x["velocity"].copy(), x["accel_bias"].copy(), x["feet"].copy(),
-                             x["accel_cross"].copy())
+                             x["accel_cross"].copy(), x["position"].copy())
         legs = rng.permutation(6)[:rng.integers(1, 7)]
         # Mostly small innovations, some beyond the gate, and tilts large enough to be reset.
         measured = state.feet[legs] + rng.normal(0.0, 0.01, (len(legs), 3)) * rng.choice([1.0, 30.0], (len(legs), 1))
@@ -173,3 +174,69 @@ def test_fusion_imu_path_takes_arrays_that_numba_boxed(runs):
             if isinstance(sample, ImuSample):
                 ekf.update(ImuSample(sample.t, np.array(sample.accel, dtype=unpickled),
                                      np.array(sample.gyro, dtype=unpickled)))
+
+
+def test_pose_covariances_equal_the_numpy_products():
+    """The covariances J P J^T of the body origin's position and velocity (fusion.pose_covariances)."""
+    rng = np.random.default_rng(3)
+    P = random_covariance(rng, ERROR_DIM, 0.1)
+    q = rot.quaternion_from_euler(0.2, -0.1, 1.3)
+    velocity, rate, lever = (rng.normal(0.0, 0.5, 3) for _ in range(3))
+    position_cov, velocity_cov = pose_covariances(P, q, velocity, rate, lever)
+    R = rot.to_matrix(q)
+    body_velocity = velocity - np.cross(rate, lever)
+    J_position = np.zeros((3, ERROR_DIM))
+    J_position[:, POSITION] = np.eye(3)
+    J_position[:, 0:3] = R @ rot.skew(lever)
+    J_velocity = np.zeros((3, ERROR_DIM))
+    J_velocity[:, 6:9] = R
+    J_velocity[:, 0:3] = -R @ rot.skew(body_velocity)
+    np.testing.assert_allclose(position_cov, J_position @ P @ J_position.T, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(velocity_cov, J_velocity @ P @ J_velocity.T, rtol=1e-12, atol=1e-15)
+
+
+def test_rolling_feet_move_and_widen_only_the_rolled_feet():
+    rng = np.random.default_rng(4)
+    P = random_covariance(rng, ERROR_DIM, 0.1)
+    feet = rng.normal(0.0, 0.2, (6, 3))
+    rolled = np.zeros((6, 3))
+    rolled[[1, 4]] = rng.normal(0.0, 1e-3, (2, 3))
+    P_after, feet_after = P.copy(), feet.copy()
+    roll_feet(P_after, feet_after, rolled, 0.25, 0.5)
+    np.testing.assert_allclose(feet_after, feet + 0.25 * rolled, rtol=1e-12, atol=1e-15)
+    grown = np.zeros(ERROR_DIM)
+    grown[FOOT0:FOOT0 + 18] = (0.5 * rolled.ravel())**2
+    np.testing.assert_allclose(P_after, P + np.diag(grown), rtol=1e-12, atol=1e-15)
+
+
+def test_sinking_feet_widen_only_the_tracked_feet_along_up():
+    rng = np.random.default_rng(8)
+    P = random_covariance(rng, ERROR_DIM, 0.1)
+    up = rng.normal(size=3)
+    up /= np.linalg.norm(up)
+    loads, previous = rng.uniform(0.0, 10.0, 6), rng.uniform(0.0, 10.0, 6)
+    load_change = loads - previous
+    P_after = P.copy()
+    sink_feet(P_after, np.array([0, 3, 5, 1]), loads, np.where(np.arange(6) == 1, np.nan, previous), tuple(up), 1e-4)
+    expected = P.copy()
+    for leg in (0, 3, 5):
+        block = slice(FOOT0 + 3 * leg, FOOT0 + 3 * leg + 3)
+        expected[block, block] += (1e-4 * load_change[leg])**2 * np.outer(up, up)
+    np.testing.assert_allclose(P_after, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_drift_statistic_equals_the_numpy_products():
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        sums = np.zeros(1, dtype=TILT_SUMS)
+        sums[0]["correction"] = rng.normal(0.0, 1e-3, 3)
+        sums[0]["covariance"] = random_covariance(rng, 3, 1e-6)
+        q = rot.quaternion_from_euler(*rng.normal(0.0, 0.4, 3))
+        basis = horizontal_basis(np.array(rot.up_in_body(q)))
+        np.testing.assert_allclose(basis @ basis.T, np.eye(2), atol=1e-12)
+        np.testing.assert_allclose(basis @ np.array(rot.up_in_body(q)), np.zeros(2), atol=1e-12)
+        drift = basis @ sums[0]["correction"]
+        covariance = basis @ sums[0]["covariance"] @ basis.T
+        statistic, norm = drift_statistic(sums, q)
+        np.testing.assert_allclose(statistic, drift @ np.linalg.solve(covariance, drift), rtol=1e-9)
+        np.testing.assert_allclose(norm, np.linalg.norm(drift), rtol=1e-12)

@@ -4,7 +4,7 @@ import pytest
 from testbed.model import spatial as rot
 from estimators.base import run_estimator
 from estimators.ekf import predict
-from estimators.fusion import ACCEL_BIAS, BIAS, ERROR_DIM, NominalState, apply_preintegration, inject
+from estimators.fusion import ACCEL_BIAS, BIAS, ERROR_DIM, NominalState, apply_preintegration, current_pose, inject
 from estimators.preintegration import Preintegration
 from estimators.registry import make_estimator
 from estimators.ukf import UkfEstimator, corrected, difference, propagate_errors
@@ -17,7 +17,8 @@ def random_interval(seed: int) -> tuple[NominalState, Preintegration]:
     """A nominal state and five IMU samples of a shaking, turning body after it."""
     rng = np.random.default_rng(seed)
     state = NominalState(rot.quaternion_from_euler(0.1, -0.2, 0.3), rng.normal(0, 0.01, 3), rng.normal(0, 0.1, 3),
-                         rng.normal(0, 0.05, 3), rng.normal(0, 0.1, (6, 3)))
+                         rng.normal(0, 0.05, 3), rng.normal(0, 0.1, (6, 3)), rng.normal(0, 1e-3, 2),
+                         rng.normal(0, 1.0, 3))
     pre = Preintegration(GRAVITY)
     pre.start(state.q, state.bias, state.accel_bias)
     for _ in range(5):
@@ -43,10 +44,10 @@ def test_ekf_transition_is_the_jacobian_of_the_process_model():
     through the preintegration's bias Jacobians, as the UKF's sigma points do)."""
     state, pre = random_interval(3)
     after, _ = apply_preintegration(state, pre, GRAVITY)
-    velocity, feet, F = state.velocity.copy(), state.feet.copy(), np.eye(ERROR_DIM)
-    q = predict(pre.record, velocity, feet, np.eye(ERROR_DIM), F, np.zeros(ERROR_DIM), np.zeros(ERROR_DIM))
+    velocity, feet, position, F = state.velocity.copy(), state.feet.copy(), state.position.copy(), np.eye(ERROR_DIM)
+    q = predict(pre.record, velocity, feet, position, np.eye(ERROR_DIM), F, np.zeros(ERROR_DIM), np.zeros(ERROR_DIM))
     assert np.allclose(q, after.q, atol=1e-15) and np.allclose(velocity, after.velocity, atol=1e-15)
-    assert np.allclose(feet, after.feet, atol=1e-15)
+    assert np.allclose(feet, after.feet, atol=1e-15) and np.allclose(position, after.position, atol=1e-15)
     numeric = np.zeros_like(F)
     for i in range(ERROR_DIM):
         dx = np.zeros(ERROR_DIM)
@@ -79,3 +80,15 @@ def test_ukf_agrees_with_the_ekf(runs):
     ratio = np.sqrt([u.attitude_cov[0, 0] / e.attitude_cov[0, 0] for u, e in zip(ukf[later], ekf[later])])
     assert 0.7 < ratio.min() and ratio.max() < 1.4
     assert ukf[-1].body_height == pytest.approx(ekf[-1].body_height, abs=5e-4)
+
+
+def test_current_pose_is_the_preintegrated_state_at_the_body_origin():
+    """fusion.current_pose against apply_preintegration: o = r - R l, v_o = R (v - w x l)."""
+    state, pre = random_interval(4)
+    after, _ = apply_preintegration(state, pre, GRAVITY)
+    lever = np.array([0.01, -0.02, 0.03])
+    rate = pre.record[0]["last_gyro"] - pre.record[0]["gyro_bias"]
+    position, velocity = current_pose(pre.record, state.position, state.velocity, lever)
+    R = rot.to_matrix(after.q)
+    np.testing.assert_allclose(position, after.position - R @ lever, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(velocity, R @ (after.velocity - np.cross(rate, lever)), rtol=1e-12, atol=1e-14)

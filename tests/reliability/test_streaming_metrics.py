@@ -39,7 +39,11 @@ def synthetic_run(seed: int):
         plane = {} if k % 4 else {"terrain_roll": rng.normal(0, 0.01), "terrain_pitch": rng.normal(0, 0.01),
                                   "body_height": 0.1 + rng.normal(0, 0.002)}
         estimates.append(Estimate(t[k] + 2e-4, quaternion[k], roll[k] + rng.normal(0, 0.005),
-                                  pitch[k] + rng.normal(0, 0.005), yaw[k], attitude_cov=covariance, **plane))
+                                  pitch[k] + rng.normal(0, 0.005), yaw[k], attitude_cov=covariance, **plane,
+                                  position=body[k] - body[0] + rng.normal(0, 0.003, 3),
+                                  velocity=np.array([0.1, 0.0, 0.0]) + rng.normal(0, 0.002, 3),
+                                  position_cov=np.diag(rng.uniform(1e-6, 1e-5, 3)),
+                                  velocity_cov=np.diag(rng.uniform(1e-6, 1e-5, 3))))
     return (t, quaternion, body, feet, contact), estimates
 
 
@@ -81,7 +85,7 @@ def test_the_streaming_score_equals_the_whole_array_score(seed):
     stream.add_truth(t, quaternion, body, feet, contact)
     rotation = Rotation.from_quat(quaternion).as_matrix()
     whole = score(estimate_arrays(estimates), t, rotation,
-                  support_plane_truth(t, feet, contact, body, rotation, FOOT_RADIUS))
+                  support_plane_truth(t, feet, contact, body, rotation, FOOT_RADIUS), truth_position=body)
     streamed = stream.metrics()
     for key in METRIC_KEYS:
         assert streamed[key] == pytest.approx(whole[key], rel=1e-12, abs=1e-12), key
