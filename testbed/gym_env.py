@@ -22,6 +22,7 @@ from gymnasium import spaces
 from estimators.base import Estimate
 from estimators.registry import NONE as NO_ESTIMATOR
 from estimators.registry import check_estimator_spec
+from estimators.scoring import roll_pitch_yaw
 from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from testbed.control.controller import CONTROLLERS, Controller
 from testbed.control.posture import tilted_targets
@@ -315,7 +316,7 @@ class HexapodTestbedEnv(gymnasium.Env):
             observation |= {"body_position": truth.body_position.astype(np.float32),
                             "body_linear_velocity": truth.body_linear_velocity.astype(np.float32),
                             "body_angular_velocity": truth.body_angular_velocity.astype(np.float32),
-                            "body_attitude": np.array(roll_pitch_yaw(truth.body_rotation), dtype=np.float32)}
+                            "body_attitude": roll_pitch_yaw(truth.body_rotation[np.newaxis])[0].astype(np.float32)}
         return observation
 
     def _info(self, fell: bool) -> dict[str, Any]:
@@ -346,12 +347,6 @@ def terrain_bounds(terrain) -> np.ndarray:
     boxes = terrain.boxes
     half = np.einsum("nij,nj->ni", np.abs(boxes.rotations), boxes.half_extents)
     return np.array([(boxes.centers - half)[:, :2].min(axis=0), (boxes.centers + half)[:, :2].max(axis=0)])
-
-
-def roll_pitch_yaw(rotation: np.ndarray) -> tuple[float, float, float]:
-    """ZYX Euler angles of a rotation matrix world_from_body."""
-    return (math.atan2(rotation[2, 1], rotation[2, 2]), -math.asin(min(max(rotation[2, 0], -1.0), 1.0)),
-            math.atan2(rotation[1, 0], rotation[0, 0]))
 
 
 def _finite(values, size: int) -> np.ndarray:
