@@ -331,11 +331,11 @@ def test_a_swing_behind_a_higher_foothold_on_its_side_lifts_to_clear_it():
 def test_a_step_the_feet_cannot_clear_or_reach_down_to_is_refused():
     base = {"run": {"terrain": "step", "controller": "posture", "estimator": "ekf"}}
     config.load(None, {**base, "terrain": {"step_height": 0.06}})
-    config.load(None, {**base, "terrain": {"step_height": -0.06}})
+    config.load(None, {**base, "terrain": {"step_height": -0.08}})
     with pytest.raises(ConfigError, match="higher than the feet can clear: at most 0.06 m"):
         config.load(None, {**base, "terrain": {"step_height": 0.065}})
-    with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.06 m"):
-        config.load(None, {**base, "terrain": {"step_height": -0.07}})
+    with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.08 m"):
+        config.load(None, {**base, "terrain": {"step_height": -0.085}})
     rough = {"run": {**base["run"], "terrain": "rough"}}
     config.load(None, {**rough, "terrain": {"rough_amplitude": 0.035}})
     with pytest.raises(ConfigError, match="rough_amplitude 0.045 m is more than the feet can clear"):
