@@ -82,6 +82,9 @@ class PostureConfig:
     step_clearance: float
     edge_margin: float
     slope_stance_shift: float
+    reach_margin: float
+    max_crouch: float
+    crouch_time_constant: float
 
     def __post_init__(self) -> None:
         POSTURE_LAWS.check_spec(self.law)
@@ -96,6 +99,9 @@ class PostureConfig:
         non_negative("posture step adaptation", self.max_swing_height, self.step_clearance, self.edge_margin)
         require(0 <= self.slope_stance_shift <= 0.2,
                 f"posture.slope_stance_shift must lie in [0, 0.2] m, got {self.slope_stance_shift}")
+        require(0 <= self.reach_margin <= 0.05, f"posture.reach_margin must lie in [0, 0.05] m, got {self.reach_margin}")
+        require(0 <= self.max_crouch <= 0.05, f"posture.max_crouch must lie in [0, 0.05] m, got {self.max_crouch}")
+        positive("posture.crouch_time_constant", self.crouch_time_constant)
         require(self.max_swing_height == 0 or self.max_swing_height >= self.step_clearance,
                  "posture.max_swing_height must be 0 (swings never raised) or at least posture.step_clearance")
 

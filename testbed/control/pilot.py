@@ -88,6 +88,12 @@ class Pilot(Controller):
         self.gait_level_rate = min(1.0, self.dt / config.posture.gait_level_time_constant) if self.use_posture else 0.0
         self.ik_limited_ticks = 0
         self.ik_limited_last = False
+        # m the body stands lower than robot.stance_height so that every foot stays within reach
+        self.crouch = 0.0
+        posture = config.posture
+        self.crouch_reach = geometry.femur + geometry.tibia - posture.reach_margin
+        self.max_crouch = posture.max_crouch if self.use_posture else 0.0
+        self.crouch_rate = min(1.0, self.dt / posture.crouch_time_constant)
 
     def start(self, joint_positions: np.ndarray) -> None:
         name, period, swing_height, adaptation, lead = self._gait_arguments
@@ -139,9 +145,16 @@ class Pilot(Controller):
             self.correction = self._posture_update(t, measurement)
             self._level_gait_frame(measurement.roll, measurement.pitch)
         tilt = self.startup.body_tilt(t) if t < startup_time else NO_TILT
-        feet, self.joint_targets, reachable = body_targets_and_joints(
-            feet, tuple(self.correction), tilt, self.geometry.arrays, self.joint_targets, self.encoder_feet,
+        last_joints = self.joint_targets
+        targets, self.joint_targets, reachable = body_targets_and_joints(
+            feet, self._applied_correction(), tilt, self.geometry.arrays, last_joints, self.encoder_feet,
             self._gait_frame_feet)
+        if self.max_crouch > 0.0 and t >= startup_time and self._crouch_to_reach(targets):
+            # lowered: the same gait targets again, through the lower body
+            targets, self.joint_targets, reachable = body_targets_and_joints(
+                feet, self._applied_correction(), tilt, self.geometry.arrays, last_joints, self.encoder_feet,
+                self._gait_frame_feet)
+        feet = targets
         self.body_targets = feet
         self._gait_frame_stale = self.posture_law is None
         limited = not reachable
@@ -151,6 +164,26 @@ class Pilot(Controller):
         self.last_command = Command(t, gait.phase(gait.clock(gait_time)), gait.state.swinging.copy(), feet,
                                     self.joint_targets, np.array([twist.vx, twist.vy, twist.wz]))
         return self.joint_targets
+
+    def _applied_correction(self) -> tuple[float, float, float]:
+        """The law's correction with the body lowered by the crouch."""
+        roll, pitch, height = self.correction
+        return roll, pitch, height - self.crouch
+
+    def _crouch_to_reach(self, targets: np.ndarray) -> bool:
+        """Lower the body at once by what the foot target (body frame) nearest the edge of its
+        leg's reach lacks, up to `max_crouch`; with room to spare, rise back towards
+        `robot.stance_height` over `crouch_time_constant`. Whether the body was lowered.
+        A level body on a ramp needs its downhill legs longer at the end of their stride, a front
+        foot reaching down a step longer than the stance allows: lowering the body keeps them
+        on their targets rather than at their last joint angles (IK-limited) while the body tilts."""
+        room = reach_room(targets, self.geometry.arrays, self.crouch_reach)
+        wanted = min(max(self.crouch - room, 0.0), self.max_crouch)
+        if wanted > self.crouch:
+            self.crouch = wanted
+            return True
+        self.crouch += (wanted - self.crouch) * self.crouch_rate
+        return False
 
     def _level_gait_frame(self, roll: float, pitch: float) -> None:
         """Turn the gait frame towards level, by its tilt with respect to gravity (the estimated
@@ -180,7 +213,7 @@ class Pilot(Controller):
         if self.posture_law is None:
             return self.encoder_feet
         if self._gait_frame_stale:
-            roll, pitch, height = self.correction
+            roll, pitch, height = self._applied_correction()
             return untilted_positions(self.encoder_feet, roll, pitch, height, np.empty((6, 3)))
         return self._gait_frame_feet
 
@@ -193,7 +226,7 @@ class Pilot(Controller):
             stance = self.foot_contact & ~self.gait.state.swinging
             height = kinematic_height(self.geometry, self.encoder_positions, stance, roll, pitch,
                                       self.config.robot.foot_radius)
-        height_error = None if height is None else height - self.config.robot.stance_height
+        height_error = None if height is None else height - (self.config.robot.stance_height - self.crouch)
         return PostureMeasurement(roll, pitch, height_error)
 
     def _absorb(self, samples: list[Sample]) -> None:
@@ -255,6 +288,22 @@ def terrain_adaptation(config) -> TerrainAdaptation:
 
 
 NO_TILT = (0.0, 0.0)
+
+
+@njit(cache=True)
+def reach_room(targets, legs, reach):
+    """m the lowest-placed foot target (6, 3; body frame) can still move down before it leaves
+    its leg's reach `reach` (m from the leg's base; negative: out of it by that much, vertically),
+    the legs' geometry a LEG_ARRAYS record."""
+    g = legs[0]
+    room = math.inf
+    for leg in range(6):
+        x = targets[leg, 0] - g.base_distance[leg] * g.base_cos[leg]
+        y = targets[leg, 1] - g.base_distance[leg] * g.base_sin[leg]
+        across = x * x + y * y
+        below = math.sqrt(reach * reach - across) if across < reach * reach else 0.0
+        room = min(room, below + targets[leg, 2])
+    return room
 
 
 def body_targets_and_joints_readable(feet: np.ndarray, correction: PostureCorrection, tilt: tuple[float, float],

@@ -32,8 +32,9 @@ class PostureMeasurement(NamedTuple):
     """What a posture law is given each tick: errors from the level body at the stance height."""
     roll: float                     # rad, body with respect to gravity (the estimate's)
     pitch: float                    # rad
-    height_error: float | None      # m, body height above the stance feet's plane less robot.stance_height;
-                                    # None when not measurable (fewer than three stance feet)
+    height_error: float | None      # m, body height above the stance feet's plane less the commanded height
+                                    # (robot.stance_height less the pilot's crouch); None when not measurable
+                                    # (fewer than three stance feet)
 
 
 class PostureCorrection(NamedTuple):

@@ -15,10 +15,9 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
-from estimators.scoring import METRIC_KEYS, StreamingScore
+from estimators.scoring import METRIC_KEYS, StreamingScore, support_planes
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
-from testbed.world.terrain import Terrain
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
 SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
@@ -32,7 +31,7 @@ class RunMetrics:
 
     BLOCK_STEPS = StreamingScore.BLOCK_STEPS
 
-    def __init__(self, config: Config, weight: float, terrain: "Terrain"):
+    def __init__(self, config: Config, weight: float):
         self.config = config
         self.weight = weight
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
@@ -46,7 +45,7 @@ class RunMetrics:
         self.last_xy = np.zeros(2)
         self._rows: list[tuple] = []      # the block being gathered, per tick: t, quaternion, body position, feet, contact
         self._estimates: list = []        # estimates of those ticks
-        self.posture = PostureSums(config, terrain)
+        self.posture = PostureSums(config)
         self.scoring = StreamingScore(config.robot.foot_radius)
 
     def add(self, tick: Tick) -> None:
@@ -74,7 +73,7 @@ class RunMetrics:
             return
         t, quaternion, position, feet, contact = (np.array(column) for column in zip(*self._rows))
         self.last_xy = position[-1, :2].copy()
-        self.posture.add(t, quaternion, position)
+        self.posture.add(t, quaternion, position, feet, contact)
         if self._estimates:
             self.scoring.add_estimates(self._estimates)
         self.scoring.add_truth(t, quaternion, position, feet, contact)
@@ -114,36 +113,71 @@ class RunMetrics:
 
 
 class PostureSums:
-    """True body tilt from level and body height above the terrain under the body centre, minus
+    """True body tilt from level and true body height above the ground its feet stand on, minus
     the commanded height, after the first second and the start-up (whose calibration poses tilt
-    the body on purpose): running sums over blocks of steps."""
+    the body on purpose): running sums over blocks of steps.
 
-    def __init__(self, config: Config, terrain: "Terrain"):
-        self.terrain = terrain
+    The ground the feet stand on is the least-squares plane through the true ground points of
+    the feet in contact (`support_plane_heights`), under the body centre. Not the terrain under
+    the body centre: that jumps by a step's height when the centre passes over its edge, and by
+    a block's on rough ground, while no body standing on its legs can (docs/control.md)."""
+
+    def __init__(self, config: Config):
         self.stance_height = config.robot.stance_height
+        self.foot_radius = config.robot.foot_radius
         self.skip_until = max(POSTURE_SKIP, config.gait.startup_time)
         self.count = 0
         self.tilt_squares = 0.0
         self.tilt_max = -np.inf
         self.height_squares = 0.0
+        self.height_count = 0
+        self.last_height = math.nan      # m, the last tick's, for ticks with fewer than three feet down
 
-    def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray) -> None:
+    def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray, feet: np.ndarray,
+            contact: np.ndarray) -> None:
         keep = t >= self.skip_until
         if not keep.any():
             return
         tilt = body_tilt_deg(quaternions[keep])
-        position = positions[keep]
-        error = position[:, 2] - self.terrain.height(position[:, :2]) - self.stance_height
+        height = support_plane_heights(positions[keep], feet[keep], contact[keep], self.foot_radius)
+        height = carried_forward(height, self.last_height)
+        self.last_height = float(height[-1])
+        error = height[np.isfinite(height)] - self.stance_height
         self.count += len(tilt)
         self.tilt_squares += float(np.sum(tilt ** 2))
         self.tilt_max = max(self.tilt_max, float(tilt.max()))
         self.height_squares += float(np.sum(error ** 2))
+        self.height_count += len(error)
 
     def metrics(self) -> dict:
         if not self.count:
             return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
         return {"tilt_rms_deg": float(np.sqrt(self.tilt_squares / self.count)), "tilt_max_deg": self.tilt_max,
-                "height_error_rms_m": float(np.sqrt(self.height_squares / self.count))}
+                "height_error_rms_m": float(np.sqrt(self.height_squares / self.height_count))
+                if self.height_count else None}
+
+
+def support_plane_heights(body: np.ndarray, feet: np.ndarray, contact: np.ndarray, foot_radius: float) -> np.ndarray:
+    """(N,) vertical height of the body origin (N, 3) above the ground its feet stand on: the
+    least-squares plane through the centres of the feet in contact (N, 6, 3; contact (N, 6)),
+    lowered by the foot radius along its normal (the estimators' support plane,
+    `estimators.scoring.support_planes`); NaN where that gives no plane."""
+    relative = feet - body[:, None, :]
+    contact = np.asarray(contact, dtype=bool)
+    planes = np.full((len(body), 3), np.nan)
+    patterns = contact @ (1 << np.arange(contact.shape[1]))
+    for pattern in np.unique(patterns):
+        steps = np.flatnonzero(patterns == pattern)
+        planes[steps] = support_planes(relative[steps][:, contact[steps[0]]])
+    a, b, c = planes.T
+    return -c + foot_radius * np.sqrt(1.0 + a * a + b * b)
+
+
+def carried_forward(values: np.ndarray, before: float) -> np.ndarray:
+    """`values` with each NaN replaced by the last finite value before it (`before` at first)."""
+    values = np.concatenate([[before], values])
+    last = np.where(np.isfinite(values), np.arange(len(values)), 0)
+    return values[np.maximum.accumulate(last)][1:]
 
 
 def body_tilt_deg(quaternions: np.ndarray) -> np.ndarray:

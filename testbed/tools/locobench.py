@@ -68,7 +68,8 @@ LEAD = 0.8                      # m of level ground first: the first feature sta
 TARGET_BEYOND = 0.5             # m: the target lies this far beyond the last feature, every foot past it
 WIDTH = 1.5                     # m: the courses span y = -WIDTH ... WIDTH
 LONG_WIDTH = 0.25               # of the length: the long walks' ground is this wide to each side (no heading control)
-DURATION_MARGIN = 1.25          # course runs last the walk at the commanded speed times this, plus 3 s
+DURATION_MARGIN = 1.6           # course runs last the walk at the commanded speed times this, plus 3 s: time to
+                                # arrive for the slower gaits, whose clock waits for the ground at every step down
 LONG_DURATION = 600.0           # s
 LONG_SCENARIOS = {              # name: (terrain, speed m/s, tripod period s)
     "flat 0.1 m/s": ("flat", 0.1, 1.0),
@@ -249,8 +250,7 @@ def long_case(name: str, duration: float = LONG_DURATION) -> Case:
     overrides: dict[str, Any] = {
         "run": {"terrain": terrain, "gait": "tripod", "contact": "compliant", "seed": seed, "duration": duration},
         "gait": {"speed": speed, "tripod_period": period},
-        # rough_cell is unused here, but the config counts extent / rough_cell^2 blocks for any terrain
-        "terrain": {"extent": [-2.0, reach, -side, side], "rough_cell": 2.0}}
+        "terrain": {"extent": [-2.0, reach, -side, side]}}
     description = f"flat, {reach + 2.0:.0f} m x {2 * side:.0f} m"
     if terrain == "course":
         segments = ramp_course(rng, reach - 1.0)

@@ -269,8 +269,10 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
     full_s = None if result.loco_set.full else estimated_full_wall_s(result.results, result.workers)
     parts = [
         f"{set_description(result)} Every run: the EKF as the only attitude source and the posture controller; "
-        f"true tilt (from vertical) and height error (body height above the ground under its centre minus the "
-        f"commanded height) after the start-up, from each run's metrics JSON. Course runs walk to a target "
+        f"true tilt (from vertical) and height error (true body height above the plane of the feet in contact, "
+        f"under the body centre, minus the 0.10 m stance height: not above the terrain under the centre, which "
+        f"jumps at every step edge and rough block, docs/control.md) after the start-up, from each run's metrics "
+        f"JSON. Course runs walk to a target "
         f"{locobench.TARGET_BEYOND:g} m beyond the last feature (`gait.target`) at the gait's own speed (tripod "
         f"0.1, ripple 0.06, wave 0.04 m/s: a 5 cm stride) and last the walk at that speed times "
         f"{locobench.DURATION_MARGIN:g}, plus the start-up and 3 s. The terrain parameters and the run seeds "

@@ -102,8 +102,6 @@ class TerrainConfig:
         finite("terrain.extent", *self.extent)
         x_min, x_max, y_min, y_max = self.extent
         require(x_min < 0 < x_max and y_min < 0 < y_max, "terrain.extent must contain the origin")
-        require((x_max - x_min) * (y_max - y_min) / self.rough_cell**2 <= 20000,
-                 "terrain.extent / rough_cell gives more than 20000 blocks")
         require(math.isfinite(self.flat_start_radius) and self.flat_start_radius >= 0,
                  f"terrain.flat_start_radius must be >= 0, got {self.flat_start_radius}")
         finite("terrain.course_start", self.course_start)

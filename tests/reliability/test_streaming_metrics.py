@@ -143,3 +143,29 @@ def test_a_live_run_and_its_replay_have_the_same_metrics(tmp_path, estimator, se
     for key in METRIC_KEYS:
         assert replayed[key] == outcome.metrics[key], key
     assert not math.isnan(replayed["anees_tilt"])
+
+
+def test_the_height_metric_is_the_vertical_height_above_the_feet_s_ground_plane():
+    from testbed.runtime.metrics import carried_forward, support_plane_heights
+    rng = np.random.default_rng(4)
+    radius, slope_x, slope_y = 0.0125, math.tan(math.radians(17.0)), math.tan(math.radians(-6.0))
+    normal = np.array([-slope_x, -slope_y, 1.0]) / math.sqrt(1.0 + slope_x ** 2 + slope_y ** 2)
+    angles = np.radians([60, 120, 180, 240, 300, 360])
+    ground_xy = 0.2 * np.column_stack([np.cos(angles), np.sin(angles)]) + rng.uniform(-0.03, 0.03, (50, 6, 2))
+    ground = np.concatenate([ground_xy, (ground_xy @ [slope_x, slope_y])[..., None] + 0.3], axis=2)
+    feet = ground + radius * normal                     # sphere centres touching the plane
+    body_xy = rng.uniform(-0.05, 0.05, (50, 2))
+    height = rng.uniform(0.05, 0.15, 50)
+    body = np.column_stack([body_xy, body_xy @ [slope_x, slope_y] + 0.3 + height])
+    contact = rng.random((50, 6)) < 0.7
+    contact[:10] = [True, False, True, False, True, False]
+    contact[10] = [True, True, False, False, False, False]             # two feet: no plane
+    measured = support_plane_heights(body, feet, contact, radius)
+    three = contact.sum(axis=1) >= 3
+    np.testing.assert_allclose(measured[three], height[three], rtol=1e-9, atol=1e-12)
+    assert np.isnan(measured[~three]).all()
+    filled = carried_forward(measured, 0.5)
+    previous = np.flatnonzero(three)
+    for step in np.flatnonzero(~three):
+        before = previous[previous < step]
+        assert filled[step] == (measured[before[-1]] if len(before) else 0.5)

@@ -186,7 +186,7 @@ def test_last_level_continues_to_the_extent_and_the_footprint_is_the_extent():
     ({"course": [{"kind": "flat", "length": 9.0}]}, r"ends at x = 8.500 m, beyond terrain.extent's x_max 6"),
     ({"course": [{"kind": "flat", "length": 1.0}], "course_start": -3.0}, "course_start -3.0 m lies outside"),
     ({"course": [{"kind": "step", "height": 0.08}]}, r"8.0 cm rise is more than the legs can clear"),
-    ({"course": [{"kind": "stairs", "steps": 2, "rise": -0.07, "tread": 0.2}]}, r"7.0 cm drop is more than"),
+    ({"course": [{"kind": "stairs", "steps": 2, "rise": -0.09, "tread": 0.2}]}, r"9.0 cm drop is more than"),
     ({"course": [{"kind": "stairs", "steps": 2, "rise": 0.02, "tread": 0.015}]},
      "tread 0.015 m is narrower than the foot"),
     ({"course": [{"kind": "rough", "length": 1.0, "amplitude": 0.06, "cell": 0.1}]}, "amplitude 6.0 cm is more than"),

@@ -45,3 +45,13 @@ def test_an_ideal_robot_stops_on_the_target_not_at_the_edge_of_the_tolerance():
     (x, y, _), arrival = walk((2.0, 1.5))
     assert arrival is not None and arrival < 35.0
     assert np.hypot(x - 2.0, y - 1.5) < 0.2 * CFG.gait.target_tolerance      # 3 mm, not 15 mm
+
+
+def test_within_the_last_stride_the_walker_steps_sideways_to_the_target_without_turning():
+    walker = TargetWalker(CFG.gait, (4.0, 0.0))
+    command = walker.command((3.97, -0.02, 0.0))        # 3.6 cm off, to the front left
+    assert command.wz == 0.0 and command.vx > 0.0 and command.vy > 0.0
+    assert command.vy / command.vx == pytest.approx(0.02 / 0.03)
+    (x, y, yaw), arrival = walk((4.0, 0.0), pose=(3.95, -0.03, 0.3))
+    assert arrival is not None and np.hypot(x - 4.0, y) < 0.1 * CFG.gait.target_tolerance
+    assert yaw == 0.3                                   # it never turned

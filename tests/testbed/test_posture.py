@@ -331,11 +331,11 @@ def test_a_swing_behind_a_higher_foothold_on_its_side_lifts_to_clear_it():
 def test_a_step_the_feet_cannot_clear_or_reach_down_to_is_refused():
     base = {"run": {"terrain": "step", "controller": "posture", "estimator": "ekf"}}
     config.load(None, {**base, "terrain": {"step_height": 0.06}})
-    config.load(None, {**base, "terrain": {"step_height": -0.06}})
+    config.load(None, {**base, "terrain": {"step_height": -0.08}})
     with pytest.raises(ConfigError, match="higher than the feet can clear: at most 0.06 m"):
         config.load(None, {**base, "terrain": {"step_height": 0.065}})
-    with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.06 m"):
-        config.load(None, {**base, "terrain": {"step_height": -0.07}})
+    with pytest.raises(ConfigError, match="deeper than the feet reach down: at most 0.08 m"):
+        config.load(None, {**base, "terrain": {"step_height": -0.085}})
     rough = {"run": {**base["run"], "terrain": "rough"}}
     config.load(None, {**rough, "terrain": {"rough_amplitude": 0.035}})
     with pytest.raises(ConfigError, match="rough_amplitude 0.045 m is more than the feet can clear"):
@@ -381,3 +381,35 @@ def test_a_6_cm_step_is_crossed_without_falling(height):
                              "terrain": {"step_height": height}})
     metrics = run(cfg).metrics
     assert not metrics["fell"] and metrics["tilt_max_deg"] < 6.0
+
+
+def test_reach_room_is_how_far_the_lowest_placed_foot_can_still_go_down():
+    from testbed.control.pilot import reach_room
+    geometry = LegGeometry.from_config(CFG.robot)
+    reach = geometry.femur + geometry.tibia
+    feet = geometry.base_positions.copy()
+    outward = np.column_stack([np.cos(geometry.base_angle), np.sin(geometry.base_angle)])
+    feet[:, :2] += 0.12 * outward
+    feet[:, 2] = -0.09
+    below = math.sqrt(reach ** 2 - 0.12 ** 2)               # the lowest a foot 12 cm out can be
+    assert reach_room(feet, geometry.arrays, reach) == pytest.approx(below - 0.09, abs=1e-12)
+    feet[4, 2] = -below - 0.015                             # one foot 1.5 cm out of reach
+    assert reach_room(feet, geometry.arrays, reach) == pytest.approx(-0.015, abs=1e-12)
+    feet[4, 2] += 0.015
+    assert reach_room(feet, geometry.arrays, reach) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("angle", [20.0, -20.0])
+def test_the_body_crouches_so_that_the_legs_reach_down_a_20_degree_ramp(angle):
+    """A level body on a 20 degree ramp: the downhill legs at the end of their stride (the rear
+    legs walking up, the front legs walking down) reach past the legs' length unless it lowers."""
+    course = [{"kind": "flat", "length": 0.6}, {"kind": "ramp", "length": 0.5, "angle_deg": angle},
+              {"kind": "flat", "length": 2.0}]
+    cfg = config.load(None, {"run": {**WALK["run"], "terrain": "course", "duration": 11.0, "seed": 7},
+                             "terrain": {"course": course}})
+    crouched = run(cfg).metrics
+    upright = run(cfg.replace(posture={"max_crouch": 0.0})).metrics
+    assert not crouched["fell"] and crouched["ik_limited_ticks"] == 0 and crouched["tilt_max_deg"] < 1.5
+    assert upright["ik_limited_ticks"] > 300
+    assert crouched["height_error_rms_m"] < 0.008

@@ -76,6 +76,19 @@ def test_rough_terrain_is_seeded_and_bounded():
     assert a.tops.std() == pytest.approx(CFG.terrain.rough_amplitude / np.sqrt(3), rel=0.05)
 
 
+@pytest.mark.parametrize("name", ["flat", "slope", "step", "course"])
+def test_a_long_extent_is_accepted_where_no_blocks_are_built(name):
+    long = {"extent": [-2.0, 64.0, -3.0, 3.0], "course": [{"kind": "flat", "length": 1.0}]}
+    cfg = config.load(overrides={"run": {"terrain": name}, "terrain": long})
+    assert make_terrain(name, cfg, np.random.default_rng(0)).footprint()[1] >= 64.0
+
+
+def test_rough_ground_refuses_more_blocks_than_it_can_build():
+    with pytest.raises(ConfigError, match=r"terrain.extent / rough_cell gives \d+ blocks, more than 20000"):
+        config.load(overrides={"run": {"terrain": "rough"},
+                               "terrain": {"extent": [-2.0, 64.0, -3.0, 3.0], "rough_cell": 0.02}})
+
+
 def test_step_edge_outside_extent_is_rejected():
     bad = config.load(overrides={"terrain": {"step_edge_x": 100.0}})
     with pytest.raises(ConfigError, match="step_edge_x"):

@@ -5,10 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.model.errors import ConfigError
+from testbed.model.validation import require
 from testbed.world.config import TerrainConfig
 from testbed.world.terrain.base import Terrain
 from testbed.world.terrain.geometry import BASE_DEPTH, Boxes, axis_aligned_boxes
 from testbed.world.terrain.grid import GridTerrain
+
+MAX_BLOCKS = 20000      # boxes DART and the recorder can take
 
 
 class FlatTerrain(Terrain):
@@ -80,6 +83,15 @@ class RoughTerrain(GridTerrain):
         gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny), indexing="ij")
         tops[np.hypot(gx + cell / 2, gy + cell / 2) < config.flat_start_radius] = 0.0
         super().__init__(config, tops, x0, y0, cell, bottom=-config.rough_amplitude - BASE_DEPTH)
+
+    @classmethod
+    def check_config(cls, config) -> None:
+        """Only rough ground builds blocks over the whole extent: the other presets build a few
+        boxes whatever its size."""
+        x0, x1, y0, y1 = config.terrain.extent
+        cell = config.terrain.rough_cell
+        blocks = int(np.ceil((x1 - x0) / cell)) * int(np.ceil((y1 - y0) / cell))
+        require(blocks <= MAX_BLOCKS, f"terrain.extent / rough_cell gives {blocks} blocks, more than {MAX_BLOCKS}")
 
     @classmethod
     def from_config(cls, config, rng: np.random.Generator) -> "RoughTerrain":
