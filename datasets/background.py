@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import multiprocessing
 import pickle
+import queue
 import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -18,6 +20,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 _ITEM, _END, _ERROR = range(3)
+ITEMS_AHEAD = 32      # items a streaming producer makes before the consumer takes them
 
 
 def can_fork() -> bool:
@@ -40,9 +43,9 @@ def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[
 @contextmanager
 def streamed_in_background(produce: Callable[..., Iterable[T]], *args: Any) -> Iterator[Iterator[T]]:
     """The items of `produce(*args)`, made in the background and handed over through a pipe as they
-    come (so the producer runs ahead of the consumer by what the pipe holds). The iterator raises
-    the producer's exception where the producer raised it. Items must pickle cheaply: arrays, not
-    many small objects."""
+    come. The producer runs ahead of the consumer by up to ITEMS_AHEAD items (a thread of its
+    process sends them meanwhile). The iterator raises the producer's exception where the producer
+    raised it. Items must pickle cheaply: arrays, not many small objects."""
     if not can_fork():
         yield iter(produce(*args))
         return
@@ -63,14 +66,33 @@ def streamed_in_background(produce: Callable[..., Iterable[T]], *args: Any) -> I
 def _send_all(sender: Connection, produce: Callable[..., Iterable[Any]], args: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)     # `terminate` ends it quietly, whatever the parent's handler
+    waiting: queue.Queue = queue.Queue(maxsize=ITEMS_AHEAD)
+    sending = threading.Thread(target=_send_from, args=(waiting, sender), daemon=True)
+    sending.start()
     try:
         for item in produce(*args):
-            sender.send((_ITEM, item))
-        sender.send((_END, None))
-    except BrokenPipeError:
-        pass                # the consumer stopped reading
+            waiting.put((_ITEM, item))
+        waiting.put((_END, None))
     except BaseException as error:      # noqa: BLE001 - handed to the consumer, who raises it
-        sender.send((_ERROR, _picklable(error)))
+        waiting.put((_ERROR, _picklable(error)))
+    sending.join()
+
+
+def _send_from(waiting: queue.Queue, sender: Connection) -> None:
+    """Send the queued messages until the last one, or until the consumer stops reading (the parent
+    then ends this process)."""
+    try:
+        while True:
+            kind, value = waiting.get()
+            try:
+                sender.send((kind, value))
+            except BrokenPipeError:
+                return
+            except Exception as error:      # noqa: BLE001 - an item that does not pickle: the consumer raises it
+                sender.send((_ERROR, _picklable(error)))
+                return
+            if kind != _ITEM:
+                return
     finally:
         sender.close()
 

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from datasets import codec, schemas
-from datasets.background import in_background, streamed_in_background
-from datasets.reader import Recording, SampleBlock, read_recording
+from datasets.background import streamed_in_background
+from datasets.reader import SCORING_TOPICS, Recording, SampleBlock, read_recording, replay_inputs
 from datasets.recorder import DatasetWriter
 from datasets.scoring import ScoringTruth, score_run
 from estimators.base import Estimate, run_estimator
@@ -26,7 +26,6 @@ from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
 EVERY_SENSOR_TOPIC = frozenset({schemas.SENSOR_PREFIX})
-SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 SAMPLES_PER_BLOCK = 4096
 
 
@@ -45,18 +44,18 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
     in their order (`datasets.progress.with_progress` shows a progress bar over their span
     meanwhile).
 
-    Two forked processes work beside the estimator: one decodes the samples block by block as the
-    estimator consumes them, the other reads the truth that scores the estimates."""
+    A forked process reads the file beside the estimator: it decodes the samples block by block,
+    ahead of the estimator, then the truth that scores the estimates."""
     started = time.perf_counter()
     recording = read_recording(path, topics=None if out is not None else ())
     config = recording.config().replace(run={"estimator": estimator_name})
     recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
     counted, feed = SampleCount(), feed or without_progress
-    with in_background(read_scoring_truth, path) as scoring_truth, \
-            streamed_in_background(sample_blocks, path, sample_topics(estimator_name)) as blocks:
+    with streamed_in_background(replay_inputs, path, sample_topics(estimator_name), SAMPLES_PER_BLOCK) as items:
         estimator = make_estimator(estimator_name, config)      # (while the file is read)
-        estimates = run_estimator(estimator, feed(counted.samples(blocks), sensor_span_s(recording)))
-        truth = scoring_truth()
+        inputs = ReplayInputs(items)
+        estimates = run_estimator(estimator, feed(counted.samples(inputs.blocks()), sensor_span_s(recording)))
+        truth = inputs.scoring_truth()
     metrics = score_run(config, truth, estimates)
     sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0
     wall = time.perf_counter() - started
@@ -82,9 +81,24 @@ class SampleCount:
             yield from block.samples()
 
 
-def sample_blocks(path: str | Path, topics: frozenset[str]) -> Iterator[SampleBlock]:
-    """The samples of `topics` in the file, in handing order, as blocks of columns."""
-    return read_recording(path, topics=topics).sample_blocks(SAMPLES_PER_BLOCK)
+@dataclass
+class ReplayInputs:
+    """The items of `reader.replay_inputs`: sample blocks, then the scoring truth."""
+    items: Iterator[SampleBlock | ScoringTruth]
+    truth: ScoringTruth | None = None
+
+    def blocks(self) -> Iterator[SampleBlock]:
+        for item in self.items:
+            if isinstance(item, ScoringTruth):
+                self.truth = item
+                return
+            yield item
+
+    def scoring_truth(self) -> ScoringTruth:
+        """The truth, after the blocks (those not taken yet are skipped)."""
+        for _ in self.blocks():
+            pass
+        return self.truth
 
 
 def sensor_span_s(recording: Recording) -> float:
