@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.base import Estimate
+from estimators.scoring import EstimateArrays
 from testbed.runtime.config import Config
 from testbed.runtime.metrics import score_estimates
 
@@ -28,7 +29,8 @@ class ScoringTruth:
     foot_contact: np.ndarray        # (N, 6) bool
 
 
-def score_run(config: Config, truth: ScoringTruth, estimates: Sequence[Estimate]) -> dict:
-    """Metrics `estimators.scoring.METRIC_KEYS` of the estimates, scored exactly as the live run."""
+def score_run(config: Config, truth: ScoringTruth, estimates: Sequence[Estimate] | EstimateArrays) -> dict:
+    """Metrics `estimators.scoring.METRIC_KEYS` of the estimates (or their columns), scored exactly
+    as the live run."""
     return score_estimates(config, truth.t, truth.quaternion, truth.body_position, truth.foot_positions,
-                           truth.foot_contact, list(estimates))
+                           truth.foot_contact, estimates if isinstance(estimates, EstimateArrays) else list(estimates))

@@ -446,7 +446,7 @@ class StreamingScore:
         if self._buffered:
             self._score_block()
         if self._previous is not None and self._estimates:
-            self._score(_concatenate(self._estimates), self._previous)
+            self._score(concatenated(self._estimates), self._previous)
             self._estimates = []
         return self.sums.metrics()
 
@@ -465,7 +465,7 @@ class StreamingScore:
             self._previous = block
             return
         if self._estimates:
-            estimates = _concatenate(self._estimates)
+            estimates = concatenated(self._estimates)
             now, later = _split(estimates, estimates.t <= block.t[-1])
             self._estimates = [later] if len(later.t) else []
             self._score(now, block)
@@ -499,9 +499,9 @@ class _TruthBlock:
                            np.concatenate([self.position, other.position]))
 
 
-def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
-    """One EstimateArrays of several: a column missing from some (None) is NaN there; the
-    covariance is None if any lacks it."""
+def concatenated(blocks: list[EstimateArrays]) -> EstimateArrays:
+    """One EstimateArrays of several (at least one), as `estimate_arrays` of all their estimates:
+    a terrain column missing from some (None) is NaN there; another column is None if any lacks it."""
     if len(blocks) == 1:
         return blocks[0]
 
@@ -512,11 +512,11 @@ def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
         return np.concatenate([np.full(len(block.t), np.nan) if value is None else value
                                for block, value in zip(blocks, values)])
 
-    def stacked(name):
+    def joined(name):
         values = [getattr(block, name) for block in blocks]
         return None if any(value is None for value in values) else np.concatenate(values)
 
-    return EstimateArrays(**{name: column(name) if name in NAN_FILLED else stacked(name)
+    return EstimateArrays(**{name: column(name) if name in NAN_FILLED else joined(name)
                              for name in (f.name for f in fields(EstimateArrays))})
 
 
