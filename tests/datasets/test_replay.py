@@ -3,8 +3,10 @@ for bit and scores like the live run; another estimator gets a dataset of its ow
 
 from __future__ import annotations
 
+import gc
 import json
 import struct
+import weakref
 
 import numpy as np
 import pytest
@@ -14,7 +16,7 @@ from datasets import codec, schemas
 from datasets import reader
 from datasets.reader import SampleBlock, read_recording, replay_inputs
 from datasets.background import in_background
-from datasets.replay import read_scoring_truth, replay, sample_topics
+from datasets.replay import older_objects_left_alone, read_scoring_truth, replay, sample_topics
 from datasets.scoring import ScoringTruth, score_run
 from estimators.registry import make_estimator
 from estimators.scoring import METRIC_KEYS
@@ -209,3 +211,26 @@ def test_the_first_block_is_handed_over_after_the_chunks_that_hold_it(ekf_run, m
     monkeypatch.setattr(reader, "_take_chunk", lambda *args: (read.append(1), take_chunk(*args)))
     first = next(replay_inputs(path, EVERY_SENSOR, 100))
     assert first.size == 100 and chunks > 4 and len(read) <= 2
+
+
+class Cycle:
+    def __init__(self):
+        self.me = self
+
+
+def test_the_collector_leaves_older_objects_alone_during_a_replay_and_still_collects_its_garbage():
+    gc.collect()
+    with older_objects_left_alone():
+        frozen = gc.get_freeze_count()
+        cycle = weakref.ref(Cycle())
+        gc.collect()
+        assert frozen > 1000 and cycle() is None
+    assert gc.get_freeze_count() == 0
+    gc.freeze()                 # frozen by the program: left as it is
+    try:
+        before = gc.get_freeze_count()
+        with older_objects_left_alone():
+            pass
+        assert gc.get_freeze_count() == before
+    finally:
+        gc.unfreeze()
