@@ -17,12 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from datasets import codec, schemas
-from datasets.background import streamed_in_background
+from datasets.background import exchanged_in_background
 from datasets.reader import SCORING_TOPICS, Recording, SampleBlock, read_recording, replay_inputs
 from datasets.recorder import DatasetWriter
-from datasets.scoring import ScoringTruth, score_run
+from datasets.scoring import ScoringTruth, score_as_they_come
 from estimators.base import Estimate, estimate_batches
-from estimators.scoring import concatenated, estimate_arrays
+from estimators.scoring import EstimateArrays, estimate_arrays
 from estimators.registry import make_estimator, resolve_estimator
 from sensors.samples import Sample
 from testbed.runtime.config import Config
@@ -48,25 +48,24 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
     meanwhile).
 
     A forked process reads the file beside the estimator: it decodes the samples block by block,
-    ahead of the estimator, then the truth that scores the estimates."""
+    ahead of the estimator, then the truth, and scores the estimates as they come back to it."""
     started = time.perf_counter()
     recording = read_recording(path, topics=None if out is not None else ())
     config = recording.config().replace(run={"estimator": estimator_name})
     recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
     counted, feed = SampleCount(), feed or without_progress
-    with older_objects_left_alone(), \
-            streamed_in_background(replay_inputs, path, sample_topics(estimator_name), SAMPLES_PER_BLOCK) as items:
+    with older_objects_left_alone(), exchanged_in_background(read_and_score, path, sample_topics(estimator_name),
+                                                             config) as (items, to_scorer):
         estimator = make_estimator(estimator_name, config)      # (while the file is read)
         inputs = ReplayInputs(items)
         estimates: list[Estimate] = []
-        columns = []
         for batch in estimate_batches(estimator, feed(counted.samples(inputs.blocks()), sensor_span_s(recording))):
             if batch:
                 estimates += batch
-                columns.append(estimate_arrays(batch))      # (while the batch's objects are fresh in the caches)
-        truth = inputs.scoring_truth()
-        metrics = score_run(config, truth, concatenated(columns) if columns else estimates)
-    sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0
+                to_scorer.send(estimate_arrays(batch))     # (while the batch's objects are fresh in the caches)
+        sim_time = inputs.sim_time()
+        to_scorer.close()
+        metrics = inputs.metrics()
     wall = time.perf_counter() - started
     metrics.update({"estimator": estimator_name, "samples": counted.count, "estimates": len(estimates),
                     "sim_time_s": sim_time, "wall_s": wall, "realtime_factor": sim_time / wall if wall > 0 else None})
@@ -108,24 +107,50 @@ class SampleCount:
             yield from block.samples()
 
 
+@dataclass(frozen=True)
+class BlocksEnd:
+    """After the last sample block."""
+    sim_time: float         # s, from the first to the last truth step
+
+
+def read_and_score(estimates: Iterator[EstimateArrays], path: str | Path, topics: frozenset[str],
+                   config: Config) -> Iterator[SampleBlock | BlocksEnd | dict]:
+    """The reading process of a replay: the blocks of samples of `topics` (`reader.replay_inputs`),
+    BlocksEnd, then the metrics of the estimates the replay sends back in time-ordered parts, each
+    scored against the truth as it comes."""
+    truth = None
+    for item in replay_inputs(path, topics, SAMPLES_PER_BLOCK):
+        if isinstance(item, ScoringTruth):
+            truth = item
+        else:
+            yield item
+    yield BlocksEnd(float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0)
+    yield score_as_they_come(config, truth, estimates)
+
+
 @dataclass
 class ReplayInputs:
-    """The items of `reader.replay_inputs`: sample blocks, then the scoring truth."""
-    items: Iterator[SampleBlock | ScoringTruth]
-    truth: ScoringTruth | None = None
+    """The items of `read_and_score`: sample blocks, BlocksEnd, the metrics."""
+    items: Iterator[SampleBlock | BlocksEnd | dict]
+    end: BlocksEnd | None = None
 
     def blocks(self) -> Iterator[SampleBlock]:
         for item in self.items:
-            if isinstance(item, ScoringTruth):
-                self.truth = item
+            if isinstance(item, BlocksEnd):
+                self.end = item
                 return
             yield item
 
-    def scoring_truth(self) -> ScoringTruth:
-        """The truth, after the blocks (those not taken yet are skipped)."""
-        for _ in self.blocks():
-            pass
-        return self.truth
+    def sim_time(self) -> float:
+        """s, after the blocks (those not taken yet are skipped)."""
+        if self.end is None:
+            for _ in self.blocks():
+                pass
+        return self.end.sim_time
+
+    def metrics(self) -> dict:
+        """After `sim_time`, once the replay has sent every estimate."""
+        return next(self.items)
 
 
 def sensor_span_s(recording: Recording) -> float:

@@ -683,12 +683,13 @@ class FusionEstimator(Estimator):
         """The outputs recomputed at each step (they change little within one): the attitude
         covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
         state = self.state
-        rate = self.pre.record[0]["last_gyro"] - state.bias
+        rate = self.pre.last_gyro - state.bias
         position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
         if self.params.rolling_feet:
             walked = state.position - self._start_position
             walked[2] = 0.0         # the spheres roll along the ground
-            position_cov += (ROLLING_STD * ROLLING_SHARE)**2 * np.outer(walked, walked)
+            scale_error = ROLLING_STD * ROLLING_SHARE * walked      # m, std of the position's scale error
+            position_cov += scale_error[:, None] * scale_error
         self._pose_covariances = position_cov, velocity_cov
         terrain = self.terrain
         if terrain.x is None:
