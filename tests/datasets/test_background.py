@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from datasets import background
-from datasets.background import streamed_in_background
+from datasets.background import exchanged_in_background, streamed_in_background
 from testbed.model.errors import UserError
 
 
@@ -82,3 +82,22 @@ def test_an_item_that_does_not_pickle_is_raised_after_the_items_before_it():
         with streamed_in_background(unpicklable_second, None) as items:
             received.extend(items)
     assert received == [1]
+
+
+def counting_then_reading(inbox, count: int):
+    yield from range(count)
+    yield [value[0] for value in inbox]
+
+
+@pytest.mark.parametrize("fork", [True, False])
+def test_the_caller_sends_values_back_while_the_producer_works(monkeypatch, fork):
+    """Values larger than a pipe holds, sent before the producer reads them: the caller never waits."""
+    monkeypatch.setattr(background, "can_fork", lambda: fork)
+    with exchanged_in_background(counting_then_reading, 3) as (items, outbox):
+        assert [next(items) for _ in range(3)] == [0, 1, 2]
+        started = time.monotonic()
+        for k in range(40):
+            outbox.send(np.full(2**15, k, dtype=float))
+        assert time.monotonic() - started < 5.0
+        outbox.close()
+        assert next(items) == list(range(40))

@@ -17,9 +17,9 @@ from datasets import reader
 from datasets.reader import SampleBlock, read_recording, replay_inputs
 from datasets.background import in_background
 from datasets.replay import older_objects_left_alone, read_scoring_truth, replay, sample_topics
-from datasets.scoring import ScoringTruth, score_run
+from datasets.scoring import ScoringTruth, score_as_they_come, score_run
 from estimators.registry import make_estimator
-from estimators.scoring import METRIC_KEYS
+from estimators.scoring import METRIC_KEYS, estimate_arrays
 from sensors.samples import ImuSample
 from tests.datasets.conftest import run_rerun
 from testbed.model.errors import UserError
@@ -234,3 +234,14 @@ def test_the_collector_leaves_older_objects_alone_during_a_replay_and_still_coll
         assert gc.get_freeze_count() == before
     finally:
         gc.unfreeze()
+
+
+@pytest.mark.parametrize("part", [1, 333, 10**6])
+def test_estimates_scored_as_they_come_score_as_all_at_once(ekf_run, part):
+    config, ticks, path = ekf_run
+    estimates = [estimate for tick in ticks for estimate in tick.estimates]
+    truth = read_scoring_truth(path)
+    parts = (estimate_arrays(estimates[first:first + part]) for first in range(0, len(estimates), part))
+    whole = score_run(config, truth, estimates)
+    assert whole["roll_rmse_deg"] is not None and whole["position_rmse_m"] is not None
+    assert score_as_they_come(config, truth, parts) == whole
