@@ -42,7 +42,8 @@ from testbed.control.command import Command
 from testbed.model.truth import Truth
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
+SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
+REPLAY_TOPICS = frozenset({schemas.SENSOR_PREFIX}) | SCORING_TOPICS
 ALL_TOPICS = None
 # Record layouts of the MCAP specification (little-endian): every record starts with its opcode
 # and its length; a Message Index holds (log time, offset in the chunk) pairs, a Message its
@@ -161,35 +162,12 @@ class Recording:
 
     def sample_blocks(self, block_size: int | None = None) -> Iterator["SampleBlock"]:
         """`samples()` cut into blocks of `block_size` (one block when None), each still columns."""
-        plugin_classes = self._plugin_sample_classes()
-        topics = [topic for topic in (*schemas.SENSOR_TOPICS, *plugin_classes) if self.messages.get(topic)]
-        topic_of, payloads, order = self._handing_order(topics)
-        block_size = block_size or max(len(order), 1)
-        for first in range(0, len(order), block_size):
-            rows = order[first:first + block_size]
-            parts = []
-            for index, topic in enumerate(topics):
-                positions = np.flatnonzero(topic_of[rows] == index)
-                if len(positions):
-                    topic_payloads = [payloads[row] for row in rows[positions].tolist()]
-                    parts.append((topic, positions, _sample_columns(topic, topic_payloads, plugin_classes.get(topic))))
-            yield SampleBlock(len(rows), parts)
+        order = HandingOrder(self.plugin_sample_classes(), block_size)
+        for topic in order.topics:
+            order.add(topic, self.messages.get(topic, []))
+        return order.blocks()
 
-    def _handing_order(self, topics: list[str]) -> tuple[np.ndarray, list[bytes], np.ndarray]:
-        """The messages of `topics` one after the other: the index in `topics` of each, their
-        payloads, and the order in which the run loop handed their samples over."""
-        topic_indexes, log_times, sequences, payloads = [], [], [], []
-        for index, topic in enumerate(topics):
-            topic_log_times, topic_sequences, topic_payloads = zip(*self.messages[topic])
-            topic_indexes += [index] * len(topic_payloads)
-            log_times += topic_log_times
-            sequences += topic_sequences
-            payloads += topic_payloads
-        # The recorder numbers samples in handing order: by sequence, then log time.
-        order = np.lexsort((np.array(log_times, dtype=np.int64), np.array(sequences, dtype=np.int64)))
-        return np.array(topic_indexes, dtype=np.int64), payloads, order
-
-    def _plugin_sample_classes(self) -> dict[str, type]:
+    def plugin_sample_classes(self) -> dict[str, type]:
         """The sample classes of the sensor plugins' topics that can be imported here."""
         classes = {topic: _importable(metadata.get("sample_class")) for topic, metadata in self.channel_metadata.items()}
         return {topic: sample_class for topic, sample_class in classes.items() if sample_class is not None}
@@ -239,6 +217,59 @@ class Recording:
 _SAMPLE_CLASSES = {schemas.IMU.name: ImuSample, schemas.ACCEL_ARRAY.name: AccelSample,
                    schemas.ENCODERS.name: EncoderSample, schemas.FEET.name: FootSample}
 _MESSAGE_CLASSES = {topic.name: topic.message_class for topic in schemas.TOPICS}
+
+
+class HandingOrder:
+    """Sensor messages put in the order the run loop handed their samples to the estimator, and
+    cut into SampleBlocks as soon as no message still to come can precede them.
+
+    The run loop hands samples over in time order (equal times in the sensor suite's order) and the
+    recorder numbers them as it goes: the order is by log time, then sequence, then topic (built-in
+    sensors first, in the suite's order). A file written in any order gives the same samples."""
+
+    def __init__(self, plugin_classes: dict[str, type], block_size: int | None):
+        self.topics = [*schemas.SENSOR_TOPICS, *plugin_classes]
+        self.plugin_classes = plugin_classes
+        self.block_size = block_size
+        self._log_times = self._sequences = self._topic_indexes = np.empty(0, dtype=np.int64)
+        self._payloads: list[bytes] = []
+
+    def add(self, topic: str, entries: Sequence[tuple[int, int, bytes]]) -> None:
+        """Messages of `topic` (one of `topics`): (log ns, sequence, data) each."""
+        if not entries:
+            return
+        log_times, sequences, payloads = zip(*entries)
+        self._log_times = np.append(self._log_times, np.array(log_times, dtype=np.int64))
+        self._sequences = np.append(self._sequences, np.array(sequences, dtype=np.int64))
+        self._topic_indexes = np.append(self._topic_indexes, np.full(len(payloads), self.topics.index(topic)))
+        self._payloads += payloads
+
+    def blocks(self, before_ns: int | None = None) -> Iterator["SampleBlock"]:
+        """The full blocks of the messages logged before `before_ns`, when every message still to
+        be added is logged at or after it; with None, the blocks of every message (the last one
+        possibly shorter)."""
+        order = np.lexsort((self._topic_indexes, self._sequences, self._log_times))
+        ready = len(order) if before_ns is None else int(np.searchsorted(self._log_times[order], before_ns))
+        size = self.block_size or max(ready, 1)
+        handed = 0
+        while ready - handed >= size or (before_ns is None and handed < ready):
+            rows = order[handed:handed + size]
+            yield self._block(rows)
+            handed += len(rows)
+        kept = order[handed:]
+        self._log_times, self._sequences, self._topic_indexes = (
+            self._log_times[kept], self._sequences[kept], self._topic_indexes[kept])
+        self._payloads = [self._payloads[row] for row in kept.tolist()]
+
+    def _block(self, rows: np.ndarray) -> "SampleBlock":
+        topic_indexes = self._topic_indexes[rows]
+        parts = []
+        for index in np.unique(topic_indexes).tolist():
+            positions = np.flatnonzero(topic_indexes == index)
+            topic = self.topics[index]
+            payloads = [self._payloads[row] for row in rows[positions].tolist()]
+            parts.append((topic, positions, _sample_columns(topic, payloads, self.plugin_classes.get(topic))))
+        return SampleBlock(len(rows), parts)
 
 
 @dataclass(frozen=True)
@@ -336,19 +367,74 @@ def _read_indexed(path: Path, topics: Collection[str]) -> Recording | None:
     state = _ReadState(recording, topics)
     try:
         with path.open("rb") as stream:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-            if summary is None or not summary.chunk_indexes \
-                    or not all(index.message_index_offsets for index in summary.chunk_indexes):
+            chunk_indexes = _take_summary(stream, state)
+            if chunk_indexes is None:
                 return None
-            for record in [*summary.schemas.values(), *summary.channels.values(), *reader.iter_metadata(),
-                           *reader.iter_attachments()]:
-                state.take(record)
-            for chunk_index in summary.chunk_indexes:
+            for chunk_index in chunk_indexes:
                 _take_chunk(stream, chunk_index, state)
     except Exception:   # noqa: BLE001 - whatever does not read through the summary is read front to back
         return None
     return recording
+
+
+def _take_summary(stream: BinaryIO, state: _ReadState) -> list[ChunkIndex] | None:
+    """The schemas, channels, metadata and attachments of the file's summary, taken into `state`;
+    returns the chunk indexes, or None when the file has no complete summary with message indexes."""
+    reader = make_reader(stream)
+    summary = reader.get_summary()
+    if summary is None or not summary.chunk_indexes \
+            or not all(index.message_index_offsets for index in summary.chunk_indexes):
+        return None
+    for record in [*summary.schemas.values(), *summary.channels.values(), *reader.iter_metadata(),
+                   *reader.iter_attachments()]:
+        state.take(record)
+    return summary.chunk_indexes
+
+
+def replay_inputs(path: str | Path, topics: Collection[str], block_size: int) -> Iterator[SampleBlock | ScoringTruth]:
+    """What a replay reads: the samples of the sensor `topics` in handing order, in blocks of
+    `block_size`, then the scoring truth. Through the file's summary the chunks are read in the order
+    of their first log times, and each block is handed over as soon as the chunks read fix it (a
+    replay starts after a few chunks); a damaged chunk ends the readable part. A file without a
+    usable summary is read whole first."""
+    path = Path(path)
+    _check_is_mcap(path)
+    recording = Recording(path)
+    state = _ReadState(recording, frozenset(topics) | SCORING_TOPICS)
+    with path.open("rb") as stream:
+        try:
+            chunk_indexes = _take_summary(stream, state)
+        except Exception:   # noqa: BLE001 - read front to back below
+            chunk_indexes = None
+        if chunk_indexes is not None:
+            order = HandingOrder(recording.plugin_sample_classes(), block_size)
+            yield from _blocks_chunk_by_chunk(stream, chunk_indexes, state, order)
+    if chunk_indexes is None:
+        recording = read_recording(path, frozenset(topics) | SCORING_TOPICS)
+        order = HandingOrder(recording.plugin_sample_classes(), block_size)
+        for topic in order.topics:
+            order.add(topic, recording.messages.get(topic, []))
+    yield from order.blocks()
+    yield recording.scoring_truth()
+
+
+def _blocks_chunk_by_chunk(stream: BinaryIO, chunk_indexes: list[ChunkIndex], state: _ReadState,
+                           order: HandingOrder) -> Iterator[SampleBlock]:
+    """The blocks the chunks fix as they are read, in the order of their first log times (the
+    messages they leave open stay in `order`); the other wanted messages stay in the recording."""
+    messages = state.recording.messages
+    chunk_indexes = sorted(chunk_indexes, key=lambda index: (index.message_start_time, index.chunk_start_offset))
+    for k, chunk_index in enumerate(chunk_indexes):
+        try:
+            _take_chunk(stream, chunk_index, state)
+        except Exception:   # noqa: BLE001 - a chunk that does not read ends the readable part
+            return
+        for topic in order.topics:
+            if messages.get(topic):
+                order.add(topic, messages[topic])
+                messages[topic] = []
+        if k + 1 < len(chunk_indexes):
+            yield from order.blocks(before_ns=chunk_indexes[k + 1].message_start_time)
 
 
 def _take_chunk(stream: BinaryIO, chunk_index: ChunkIndex, state: _ReadState) -> None:

@@ -9,24 +9,26 @@ config therefore produces bit-identical estimates again.
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from datasets import codec, schemas
-from datasets.background import in_background, streamed_in_background
-from datasets.reader import Recording, SampleBlock, read_recording
+from datasets.background import exchanged_in_background
+from datasets.reader import SCORING_TOPICS, Recording, SampleBlock, read_recording, replay_inputs
 from datasets.recorder import DatasetWriter
-from datasets.scoring import ScoringTruth, score_run
-from estimators.base import Estimate, run_estimator
+from datasets.scoring import ScoringTruth, score_as_they_come
+from estimators.base import Estimate, estimate_batches
+from estimators.scoring import EstimateArrays, estimate_arrays
 from estimators.registry import make_estimator, resolve_estimator
 from sensors.samples import Sample
 from testbed.runtime.config import Config
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
 EVERY_SENSOR_TOPIC = frozenset({schemas.SENSOR_PREFIX})
-SCORING_TOPICS = frozenset({schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name})
 SAMPLES_PER_BLOCK = 4096
 
 
@@ -45,26 +47,49 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
     in their order (`datasets.progress.with_progress` shows a progress bar over their span
     meanwhile).
 
-    Two forked processes work beside the estimator: one decodes the samples block by block as the
-    estimator consumes them, the other reads the truth that scores the estimates."""
+    A forked process reads the file beside the estimator: it decodes the samples block by block,
+    ahead of the estimator, then the truth, and scores the estimates as they come back to it."""
     started = time.perf_counter()
     recording = read_recording(path, topics=None if out is not None else ())
     config = recording.config().replace(run={"estimator": estimator_name})
     recording.require(*NEEDED_TOPICS, purpose=f"a replay through '{estimator_name}'")
     counted, feed = SampleCount(), feed or without_progress
-    with in_background(read_scoring_truth, path) as scoring_truth, \
-            streamed_in_background(sample_blocks, path, sample_topics(estimator_name)) as blocks:
+    with older_objects_left_alone(), exchanged_in_background(read_and_score, path, sample_topics(estimator_name),
+                                                             config) as (items, to_scorer):
         estimator = make_estimator(estimator_name, config)      # (while the file is read)
-        estimates = run_estimator(estimator, feed(counted.samples(blocks), sensor_span_s(recording)))
-        truth = scoring_truth()
-    metrics = score_run(config, truth, estimates)
-    sim_time = float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0
+        inputs = ReplayInputs(items)
+        estimates: list[Estimate] = []
+        for batch in estimate_batches(estimator, feed(counted.samples(inputs.blocks()), sensor_span_s(recording))):
+            if batch:
+                estimates += batch
+                to_scorer.send(estimate_arrays(batch))     # (while the batch's objects are fresh in the caches)
+        sim_time = inputs.sim_time()
+        to_scorer.close()
+        metrics = inputs.metrics()
     wall = time.perf_counter() - started
     metrics.update({"estimator": estimator_name, "samples": counted.count, "estimates": len(estimates),
                     "sim_time_s": sim_time, "wall_s": wall, "realtime_factor": sim_time / wall if wall > 0 else None})
     if out is not None:
         write_replayed(recording, Path(out), config, estimates, metrics)
     return ReplayResult(metrics, estimates, counted.count, recording.truncation_note())
+
+
+@contextmanager
+def older_objects_left_alone() -> Iterator[None]:
+    """Within the block the cyclic garbage collector leaves the objects that exist before it alone
+    (`gc.freeze`). A replay keeps an object per estimate, 60 000 a simulated minute: the full
+    collections their number triggers would otherwise also scan every object of the libraries
+    loaded, each time (about 0.15 s each, twice in a minute's replay). The block's own garbage is
+    still collected. Where objects are frozen already (by the program, before forking its workers),
+    nothing changes."""
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def without_progress(samples: Iterable[Sample], span_s: float) -> Iterable[Sample]:
@@ -82,9 +107,50 @@ class SampleCount:
             yield from block.samples()
 
 
-def sample_blocks(path: str | Path, topics: frozenset[str]) -> Iterator[SampleBlock]:
-    """The samples of `topics` in the file, in handing order, as blocks of columns."""
-    return read_recording(path, topics=topics).sample_blocks(SAMPLES_PER_BLOCK)
+@dataclass(frozen=True)
+class BlocksEnd:
+    """After the last sample block."""
+    sim_time: float         # s, from the first to the last truth step
+
+
+def read_and_score(estimates: Iterator[EstimateArrays], path: str | Path, topics: frozenset[str],
+                   config: Config) -> Iterator[SampleBlock | BlocksEnd | dict]:
+    """The reading process of a replay: the blocks of samples of `topics` (`reader.replay_inputs`),
+    BlocksEnd, then the metrics of the estimates the replay sends back in time-ordered parts, each
+    scored against the truth as it comes."""
+    truth = None
+    for item in replay_inputs(path, topics, SAMPLES_PER_BLOCK):
+        if isinstance(item, ScoringTruth):
+            truth = item
+        else:
+            yield item
+    yield BlocksEnd(float(truth.t[-1] - truth.t[0]) if len(truth.t) else 0.0)
+    yield score_as_they_come(config, truth, estimates)
+
+
+@dataclass
+class ReplayInputs:
+    """The items of `read_and_score`: sample blocks, BlocksEnd, the metrics."""
+    items: Iterator[SampleBlock | BlocksEnd | dict]
+    end: BlocksEnd | None = None
+
+    def blocks(self) -> Iterator[SampleBlock]:
+        for item in self.items:
+            if isinstance(item, BlocksEnd):
+                self.end = item
+                return
+            yield item
+
+    def sim_time(self) -> float:
+        """s, after the blocks (those not taken yet are skipped)."""
+        if self.end is None:
+            for _ in self.blocks():
+                pass
+        return self.end.sim_time
+
+    def metrics(self) -> dict:
+        """After `sim_time`, once the replay has sent every estimate."""
+        return next(self.items)
 
 
 def sensor_span_s(recording: Recording) -> float:

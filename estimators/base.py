@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from itertools import islice
 from typing import ClassVar
@@ -132,7 +132,13 @@ def run_estimator(estimator: Estimator, samples: Iterable[Sample], batch: int = 
     """Feed time-ordered samples to an estimator, `batch` at a time through `update_batch`, and
     collect its estimates (offline replay)."""
     estimates: list[Estimate] = []
+    for batch_estimates in estimate_batches(estimator, samples, batch):
+        estimates += batch_estimates
+    return estimates
+
+
+def estimate_batches(estimator: Estimator, samples: Iterable[Sample], batch: int = 4096) -> Iterator[list[Estimate]]:
+    """`run_estimator`'s estimates, `update_batch` by `update_batch`."""
     wanted = iter(samples_for(estimator, samples))
     while chunk := list(islice(wanted, batch)):
-        estimates += estimator.update_batch(chunk)
-    return estimates
+        yield estimator.update_batch(chunk)

@@ -100,6 +100,7 @@ MAX_STEP = 0.01                # s: without encoder samples, the filter steps on
 STUCK_GYRO_SAMPLES = 5
 BODY_RATE_STD = 1.0            # rad/s
 ZERO = np.zeros(3)
+MISSING = np.full(3, np.nan)   # a reading that is missing
 I3 = np.eye(3)
 ZERO33 = np.zeros((3, 3))
 FLOAT64 = np.dtype(np.float64)
@@ -441,9 +442,10 @@ class FusionEstimator(Estimator):
             return self._initialise(t, gyro, accel)
         dt = t - self.t
         gyro = self._gyro_input(t, gyro, max(dt, 0.0))
-        status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(
-            self.pre.record, ZERO if gyro is None else gyro, ZERO if accel is None else accel, gyro is not None,
-            accel is not None, max(dt, 0.0))
+        state = self.state
+        status, qx, qy, qz, qw, roll, pitch, yaw, pose = imu_sample_and_pose(
+            self.pre.record, MISSING if gyro is None else gyro, MISSING if accel is None else accel, max(dt, 0.0),
+            state.position, state.velocity, self.imu_position)
         if dt > 0:
             self.t = t
         nominal = False      # the sample's attitude gives way to the nominal one after a restart or a step
@@ -456,7 +458,7 @@ class FusionEstimator(Estimator):
             nominal = True
         if nominal:
             return self._estimate(t)
-        return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw)
+        return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw, pose)
 
     def _gyro_input(self, t: float, gyro: np.ndarray | None, dt: float) -> np.ndarray | None:
         """The rate the filter integrates for this sample (body frame, bias included), or None.
@@ -668,27 +670,28 @@ class FusionEstimator(Estimator):
         return self._attitude_estimate(t, *q, *rot.euler_from_quaternion(q))
 
     def _attitude_estimate(self, t: float, qx: float, qy: float, qz: float, qw: float, roll: float, pitch: float,
-                           yaw: float) -> Estimate:
-        """The estimate with this attitude (qx, qy, qz, qw, roll, pitch, yaw); its covariance, the
-        bias and the terrain of the last step (they change little within a step, and are
-        recomputed only there)."""
+                           yaw: float, pose: tuple[np.ndarray, np.ndarray] | None = None) -> Estimate:
+        """The estimate with this attitude (qx, qy, qz, qw, roll, pitch, yaw) and pose (`current_pose`,
+        computed when not given); its covariance, the bias and the terrain of the last step (they
+        change little within a step, and are recomputed only there)."""
         if self._output is None:
             self._output = self._step_output(t, roll, pitch, yaw)
-        state = self.state
-        position, velocity = current_pose(self.pre.record, state.position, state.velocity, self.imu_position)
-        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output, position, velocity,
-                        *self._pose_covariances)
+        if pose is None:
+            state = self.state
+            pose = current_pose(self.pre.record, state.position, state.velocity, self.imu_position)
+        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output, *pose, *self._pose_covariances)
 
     def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
         """The outputs recomputed at each step (they change little within one): the attitude
         covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
         state = self.state
-        rate = self.pre.record[0]["last_gyro"] - state.bias
+        rate = self.pre.last_gyro - state.bias
         position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
         if self.params.rolling_feet:
             walked = state.position - self._start_position
             walked[2] = 0.0         # the spheres roll along the ground
-            position_cov += (ROLLING_STD * ROLLING_SHARE)**2 * np.outer(walked, walked)
+            scale_error = ROLLING_STD * ROLLING_SHARE * walked      # m, std of the position's scale error
+            position_cov += scale_error[:, None] * scale_error
         self._pose_covariances = position_cov, velocity_cov
         terrain = self.terrain
         if terrain.x is None:
@@ -711,6 +714,17 @@ def interval_summary(record: np.ndarray, mean_force: np.ndarray, body_turn: np.n
     turn = np.array(rot.log((p.dq[0], p.dq[1], p.dq[2], p.dq[3])))
     body_turn += turn
     return mean_force[0], mean_force[1], mean_force[2], turn[0], turn[1], turn[2], turn @ turn
+
+
+# Compiled: one call per IMU sample.
+@njit(cache=True)
+def imu_sample_and_pose(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray, dt: float, position: np.ndarray,
+                        velocity: np.ndarray, lever: np.ndarray) -> tuple:
+    """`imu_sample` of readings that are missing where they are not finite (MISSING), then
+    `current_pose` of the nominal IMU-point position and velocity with the lever arm:
+    (status, qx, qy, qz, qw, roll, pitch, yaw, (position, velocity))."""
+    status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(record, gyro, accel, True, True, dt)
+    return status, qx, qy, qz, qw, roll, pitch, yaw, current_pose(record, position, velocity, lever)
 
 
 # Compiled: it runs at every filter step, on 3x3 blocks where numpy's per-call cost dominates.

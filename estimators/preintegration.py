@@ -160,6 +160,7 @@ class Preintegration:
         self.q0, self.dq, self.dv, self.dp = fields["q0"], fields["dq"], fields["dv"], fields["dp"]
         self.j_r, self.j_v_g, self.j_v_a = fields["j_r"], fields["j_v_g"], fields["j_v_a"]
         self.j_p_g, self.j_p_a = fields["j_p_g"], fields["j_p_a"]
+        self.last_gyro = fields["last_gyro"]
         self.q0[3] = 1.0
         self._dt = self.record["dt"]
         self._extra_variance = self.record["extra_variance"]

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
+from operator import attrgetter
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -76,29 +77,40 @@ class TerrainTruth:
 
 
 def estimate_arrays(estimates: Sequence[Estimate]) -> EstimateArrays:
+    """The estimates' fields as columns."""
+    def values(name):
+        return list(map(attrgetter(name), estimates))
+
+    def floats(name):
+        return np.array(values(name), dtype=float)
+
     def column(name):
-        values = [getattr(e, name) for e in estimates]
-        if all(v is None for v in values):
-            return None
-        return np.array([np.nan if v is None else v for v in values], dtype=float)
+        """Floats, NaN where an estimate has None; None when all have None."""
+        column_values = values(name)
+        return None if column_values.count(None) == len(column_values) else np.array(column_values, dtype=float)
 
-    def stacked(name):
-        """Every estimate's array `name` stacked; None unless all have one."""
-        values = [getattr(e, name) for e in estimates]
-        if not values or any(v is None for v in values):
-            return None
-        return np.array(values, dtype=float)
-
-    attitude_cov = stacked("attitude_cov")
+    attitude_cov = stacked(values("attitude_cov"))
     return EstimateArrays(
-        t=np.array([e.t for e in estimates], dtype=float),
-        roll=np.array([e.roll for e in estimates], dtype=float),
-        pitch=np.array([e.pitch for e in estimates], dtype=float),
+        t=floats("t"), roll=floats("roll"), pitch=floats("pitch"),
         tilt_cov=None if attitude_cov is None else attitude_cov[:, :2, :2],
         terrain_roll=column("terrain_roll"), terrain_pitch=column("terrain_pitch"),
-        body_height=column("body_height"), yaw=np.array([e.yaw for e in estimates], dtype=float),
-        attitude_cov=attitude_cov, position=stacked("position"), velocity=stacked("velocity"),
-        position_cov=stacked("position_cov"), velocity_cov=stacked("velocity_cov"))
+        body_height=column("body_height"), yaw=floats("yaw"),
+        attitude_cov=attitude_cov, position=stacked(values("position")), velocity=stacked(values("velocity")),
+        position_cov=stacked(values("position_cov")), velocity_cov=stacked(values("velocity_cov")))
+
+
+def stacked(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """The arrays stacked; None unless all are arrays. An estimator may hand the same array object
+    to consecutive estimates (a covariance that changes only at its filter steps): each run of one
+    object is converted once and repeated."""
+    identities = np.fromiter(map(id, arrays), dtype=np.uint64, count=len(arrays))
+    if not len(arrays) or np.any(identities == id(None)):
+        return None
+    firsts = np.flatnonzero(np.concatenate([[True], identities[1:] != identities[:-1]]))
+    distinct = np.array([arrays[k] for k in firsts.tolist()], dtype=float)
+    if len(firsts) == len(arrays):
+        return distinct
+    return np.repeat(distinct, np.diff(np.append(firsts, len(arrays))), axis=0)
 
 
 def roll_pitch_yaw(rotations: np.ndarray) -> np.ndarray:
@@ -142,7 +154,8 @@ def rms(values: np.ndarray) -> float | None:
 
 
 def nees_2d(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
-    return np.einsum("ni,nij,nj->n", error, np.linalg.inv(covariance), error)
+    """(N,) e^T C^-1 e of N errors (N, k) with their covariances (N, k, k)."""
+    return np.einsum("ni,ni->n", error, np.linalg.solve(covariance, error[..., None])[..., 0])
 
 
 @dataclass(frozen=True)
@@ -433,7 +446,7 @@ class StreamingScore:
         if self._buffered:
             self._score_block()
         if self._previous is not None and self._estimates:
-            self._score(_concatenate(self._estimates), self._previous)
+            self._score(concatenated(self._estimates), self._previous)
             self._estimates = []
         return self.sums.metrics()
 
@@ -452,10 +465,10 @@ class StreamingScore:
             self._previous = block
             return
         if self._estimates:
-            estimates = _concatenate(self._estimates)
-            now = estimates.t <= block.t[-1]
-            self._estimates = [_select(estimates, ~now)] if not now.all() else []
-            self._score(_select(estimates, now), block)
+            estimates = concatenated(self._estimates)
+            now, later = _split(estimates, estimates.t <= block.t[-1])
+            self._estimates = [later] if len(later.t) else []
+            self._score(now, block)
         self._previous = block
 
     def _score(self, estimates: EstimateArrays, block: "_TruthBlock") -> None:
@@ -486,9 +499,9 @@ class _TruthBlock:
                            np.concatenate([self.position, other.position]))
 
 
-def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
-    """One EstimateArrays of several: a column missing from some (None) is NaN there; the
-    covariance is None if any lacks it."""
+def concatenated(blocks: list[EstimateArrays]) -> EstimateArrays:
+    """One EstimateArrays of several (at least one), as `estimate_arrays` of all their estimates:
+    a terrain column missing from some (None) is NaN there; another column is None if any lacks it."""
     if len(blocks) == 1:
         return blocks[0]
 
@@ -499,20 +512,29 @@ def _concatenate(blocks: list[EstimateArrays]) -> EstimateArrays:
         return np.concatenate([np.full(len(block.t), np.nan) if value is None else value
                                for block, value in zip(blocks, values)])
 
-    def stacked(name):
+    def joined(name):
         values = [getattr(block, name) for block in blocks]
         return None if any(value is None for value in values) else np.concatenate(values)
 
-    return EstimateArrays(**{name: column(name) if name in NAN_FILLED else stacked(name)
+    return EstimateArrays(**{name: column(name) if name in NAN_FILLED else joined(name)
                              for name in (f.name for f in fields(EstimateArrays))})
 
 
 NAN_FILLED = frozenset({"terrain_roll", "terrain_pitch", "body_height"})   # columns NaN where absent
 
 
-def _select(estimates: EstimateArrays, rows: np.ndarray) -> EstimateArrays:
+def _select(estimates: EstimateArrays, rows: np.ndarray | slice) -> EstimateArrays:
     return EstimateArrays(**{f.name: None if getattr(estimates, f.name) is None else getattr(estimates, f.name)[rows]
                              for f in fields(EstimateArrays)})
+
+
+def _split(estimates: EstimateArrays, selected: np.ndarray) -> tuple[EstimateArrays, EstimateArrays]:
+    """(the estimates `selected`, the others). Estimates in time order split at one row: the two
+    parts are views, not copies (a run's estimates are split at every truth block)."""
+    count = int(np.count_nonzero(selected))
+    if selected[:count].all():
+        return _select(estimates, slice(0, count)), _select(estimates, slice(count, None))
+    return _select(estimates, selected), _select(estimates, ~selected)
 
 
 def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarray, body_position: np.ndarray,

@@ -3,22 +3,29 @@ for bit and scores like the live run; another estimator gets a dataset of its ow
 
 from __future__ import annotations
 
+import gc
 import json
+import struct
+import weakref
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from datasets import codec, schemas
-from datasets.reader import read_recording
+from datasets import reader
+from datasets.reader import SampleBlock, read_recording, replay_inputs
 from datasets.background import in_background
-from datasets.replay import read_scoring_truth, replay, sample_topics
-from datasets.scoring import ScoringTruth, score_run
+from datasets.replay import older_objects_left_alone, read_scoring_truth, replay, sample_topics
+from datasets.scoring import ScoringTruth, score_as_they_come, score_run
 from estimators.registry import make_estimator
-from estimators.scoring import METRIC_KEYS
+from estimators.scoring import METRIC_KEYS, estimate_arrays
 from sensors.samples import ImuSample
 from tests.datasets.conftest import run_rerun
 from testbed.model.errors import UserError
-from tests.datasets.test_roundtrip import assert_same_estimate
+from tests.datasets.test_roundtrip import assert_same_estimate, assert_same_sample
+
+EVERY_SENSOR = frozenset({schemas.SENSOR_PREFIX})
 
 
 def live_truth(ticks) -> ScoringTruth:
@@ -119,11 +126,13 @@ def test_vqf_batch_of_fewer_samples_than_it_needs_to_start_gives_no_estimate(ekf
 
 @pytest.mark.parametrize("block_size", [1, 777, None])
 def test_sample_blocks_of_any_size_give_the_samples_in_handing_order(ekf_run, block_size):
-    """Against each message decoded on its own (`codec.decode_sample`), ordered by sequence, then log time."""
+    """Against each message decoded on its own (`codec.decode_sample`), ordered by log time, then
+    sequence (the recorder's numbering is in time order: ordered by sequence alone, the same)."""
     _, _, path = ekf_run
     recording = read_recording(path, topics=frozenset({schemas.SENSOR_PREFIX}))
-    entries = sorted((sequence, log_ns, topic, data) for topic in schemas.SENSOR_TOPICS
+    entries = sorted((log_ns, sequence, topic, data) for topic in schemas.SENSOR_TOPICS
                      for log_ns, sequence, data in recording.messages.get(topic, []))
+    assert [sequence for _, sequence, _, _ in entries] == sorted(sequence for _, sequence, _, _ in entries)
     expected = [codec.decode_sample(topic, data) for _, _, topic, data in entries]
     blocks = list(recording.sample_blocks(block_size))
     assert [block.size for block in blocks][:-1] == [block_size or len(expected)] * (len(blocks) - 1)
@@ -152,3 +161,87 @@ def test_a_recorded_config_without_a_newer_key_takes_its_default(ekf_run):
     newer = _with_recorded_config(read_recording(path, topics=()), lambda config: config["terrain"].update(bumps=1.0))
     with pytest.raises(UserError, match="does not fit this testbed version.*unknown config key 'terrain.bumps'"):
         newer.config()
+
+
+def streamed(path, topics=EVERY_SENSOR, block_size=500) -> tuple[list, ScoringTruth]:
+    items = list(replay_inputs(path, topics, block_size))
+    assert isinstance(items[-1], ScoringTruth) and all(isinstance(item, SampleBlock) for item in items[:-1])
+    assert all(block.size == block_size for block in items[:-2])
+    return [sample for block in items[:-1] for sample in block.samples()], items[-1]
+
+
+def assert_same_samples(a, b):
+    assert len(a) == len(b) > 0
+    for x, y in zip(a, b):
+        assert_same_sample(x, y)
+
+
+def assert_same_truth(a: ScoringTruth, b: ScoringTruth):
+    for name in ("t", "quaternion", "body_position", "foot_positions", "foot_contact"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_the_replay_inputs_are_the_recordings_samples_then_its_truth(ekf_run, tmp_path):
+    """Streamed chunk by chunk: the file as recorded, a replay's file (written in log-time order, the
+    samples of one time in topic order) and a file without its summary (read whole first)."""
+    _, _, path = ekf_run
+    samples, truth = streamed(path)
+    assert_same_samples(samples, read_recording(path).samples())
+    assert_same_truth(truth, read_scoring_truth(path))
+    replayed = tmp_path / "replayed.mcap"
+    replay(path, "complementary", out=replayed)
+    assert_same_samples(streamed(replayed)[0], samples)
+    data = path.read_bytes()
+    (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 4 - 8 - 8)    # the footer's
+    without_summary = tmp_path / "no_summary.mcap"
+    without_summary.write_bytes(data[:summary_start])
+    no_summary_samples, no_summary_truth = streamed(without_summary)
+    assert_same_samples(no_summary_samples, samples)
+    assert_same_truth(no_summary_truth, truth)
+    imu_only, _ = streamed(path, {schemas.IMU.name})
+    assert_same_samples(imu_only, [sample for sample in samples if isinstance(sample, ImuSample)])
+
+
+def test_the_first_block_is_handed_over_after_the_chunks_that_hold_it(ekf_run, monkeypatch):
+    _, _, path = ekf_run
+    with path.open("rb") as stream:
+        chunks = len(make_reader(stream).get_summary().chunk_indexes)
+    read = []
+    take_chunk = reader._take_chunk
+    monkeypatch.setattr(reader, "_take_chunk", lambda *args: (read.append(1), take_chunk(*args)))
+    first = next(replay_inputs(path, EVERY_SENSOR, 100))
+    assert first.size == 100 and chunks > 4 and len(read) <= 2
+
+
+class Cycle:
+    def __init__(self):
+        self.me = self
+
+
+def test_the_collector_leaves_older_objects_alone_during_a_replay_and_still_collects_its_garbage():
+    gc.collect()
+    with older_objects_left_alone():
+        frozen = gc.get_freeze_count()
+        cycle = weakref.ref(Cycle())
+        gc.collect()
+        assert frozen > 1000 and cycle() is None
+    assert gc.get_freeze_count() == 0
+    gc.freeze()                 # frozen by the program: left as it is
+    try:
+        before = gc.get_freeze_count()
+        with older_objects_left_alone():
+            pass
+        assert gc.get_freeze_count() == before
+    finally:
+        gc.unfreeze()
+
+
+@pytest.mark.parametrize("part", [1, 333, 10**6])
+def test_estimates_scored_as_they_come_score_as_all_at_once(ekf_run, part):
+    config, ticks, path = ekf_run
+    estimates = [estimate for tick in ticks for estimate in tick.estimates]
+    truth = read_scoring_truth(path)
+    parts = (estimate_arrays(estimates[first:first + part]) for first in range(0, len(estimates), part))
+    whole = score_run(config, truth, estimates)
+    assert whole["roll_rmse_deg"] is not None and whole["position_rmse_m"] is not None
+    assert score_as_they_come(config, truth, parts) == whole

@@ -10,9 +10,11 @@ from testbed.model import spatial as rot
 from estimators.base import Estimator
 from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FEET_UPDATE, correct_feet, feet_correction
-from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, NOMINAL, POSITION, TILT_SUMS, BiasStepDetector,
-                               NominalState, drift_statistic, foot_nis, horizontal_basis, inject, output_covariances,
-                               pose_covariances, roll_feet, sink_feet)
+from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, MISSING, NOMINAL, POSITION, TILT_SUMS,
+                               BiasStepDetector, NominalState, current_pose, drift_statistic, foot_nis,
+                               horizontal_basis, imu_sample_and_pose, inject, output_covariances, pose_covariances,
+                               roll_feet, sink_feet)
+from estimators.preintegration import Preintegration, imu_sample
 from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
 from estimators.terrain import TerrainFilter, plane_measurement
@@ -240,3 +242,25 @@ def test_drift_statistic_equals_the_numpy_products():
         statistic, norm = drift_statistic(sums, q)
         np.testing.assert_allclose(statistic, drift @ np.linalg.solve(covariance, drift), rtol=1e-9)
         np.testing.assert_allclose(norm, np.linalg.norm(drift), rtol=1e-12)
+
+
+@pytest.mark.parametrize("missing", [None, "gyro", "accel", "both"])
+def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
+    """fusion.imu_sample_and_pose against preintegration.imu_sample (a missing reading flagged)
+    followed by fusion.current_pose, on two copies of one interval."""
+    rng = np.random.default_rng(5)
+    a, b = Preintegration(9.81, 4.0, 0.1), Preintegration(9.81, 4.0, 0.1)
+    a.start(rot.normalized(tuple(rng.normal(size=4))), rng.normal(0, 0.01, 3), rng.normal(0, 0.05, 3))
+    a.remember(rng.normal(0, 0.3, 3), np.array([0.1, -0.2, 9.8]))
+    b.record[:] = a.record
+    position, velocity, lever = rng.normal(size=3), rng.normal(0, 0.1, 3), np.array([0.01, -0.02, 0.03])
+    for _ in range(4):
+        gyro, accel = rng.normal(0, 0.3, 3), np.array([0.1, -0.2, 9.8]) + rng.normal(0, 0.5, 3)
+        have_gyro, have_accel = missing not in ("gyro", "both"), missing not in ("accel", "both")
+        expected = imu_sample(a.record, gyro, accel, have_gyro, have_accel, 0.001)
+        expected_pose = current_pose(a.record, position, velocity, lever)
+        *sample, pose = imu_sample_and_pose(b.record, gyro if have_gyro else MISSING, accel if have_accel else MISSING,
+                                            0.001, position, velocity, lever)
+        assert tuple(sample) == expected
+        np.testing.assert_allclose(pose, expected_pose, rtol=1e-12, atol=1e-14)
+    assert a.record.tobytes() == b.record.tobytes()

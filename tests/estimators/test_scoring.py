@@ -136,3 +136,21 @@ def test_truth_at_a_step_is_the_steps_own_and_slerp_between():
     np.testing.assert_allclose(rotations[2:4], expected, rtol=0, atol=1e-12)
     assert not np.allclose(rotations[2], TRUTH[20]) and not np.allclose(rotations[2], TRUTH[21])
     np.testing.assert_allclose(rotations[4:], TRUTH[[0, -1]], rtol=0, atol=1e-12)
+
+
+def test_estimate_arrays_stack_arrays_shared_between_estimates_as_their_values():
+    """An estimator may give consecutive estimates one covariance object: each estimate still has its row."""
+    random = np.random.default_rng(3)
+    a, b = (random.normal(size=(3, 3)) for _ in range(2))
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    held = [a, a, a, b, b.copy(), a, np.eye(3)]
+    estimates = [Estimate(0.001 * k, q, 0.1, 0.2, 0.0, attitude_cov=cov, position=random.normal(size=3))
+                 for k, cov in enumerate(held)]
+    result = estimate_arrays(estimates)
+    np.testing.assert_array_equal(result.attitude_cov, np.array(held))
+    np.testing.assert_array_equal(result.tilt_cov, np.array(held)[:, :2, :2])
+    np.testing.assert_array_equal(result.position, np.array([e.position for e in estimates]))
+    assert result.velocity is None and result.terrain_roll is None
+    estimates[4] = Estimate(0.004, q, 0.1, 0.2, 0.0, position=np.zeros(3))
+    assert estimate_arrays(estimates).attitude_cov is None
+    assert len(estimate_arrays([]).t) == 0 and estimate_arrays([]).tilt_cov is None
