@@ -1,6 +1,7 @@
 """Stopping a run from outside: Ctrl-C (SIGINT), and SIGTERM and SIGHUP treated the same.
 
-`treat_stop_signals_as_interrupt` makes all three raise KeyboardInterrupt in the main thread.
+`treat_stop_signals_as_interrupt` makes the first of the three raise KeyboardInterrupt in the main
+thread, and the later ones ignored.
 `held_interrupts` keeps them out of a stretch of work that must not be cut (closing the run's
 files): they wait, blocked, until it ends, and are then dropped, because the work they would have
 stopped is done.
@@ -17,10 +18,18 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def treat_stop_signals_as_interrupt() -> None:
-    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt (also when SIGINT was inherited ignored,
-    as by a run started in the background by a non-interactive shell)."""
+    """The first of SIGINT, SIGTERM and SIGHUP raises KeyboardInterrupt (also when SIGINT was
+    inherited ignored, as by a run started in the background by a non-interactive shell); the
+    ones after it are ignored: the command is stopping, and an exception raised anywhere in its
+    shutdown (a finaliser, a `__del__`) would only print a traceback."""
     for signum in STOP_SIGNALS:
-        signal.signal(signum, signal.default_int_handler)
+        signal.signal(signum, _interrupt_once)
+
+
+def _interrupt_once(signum: int, frame) -> None:
+    for stop_signal in STOP_SIGNALS:
+        signal.signal(stop_signal, signal.SIG_IGN)
+    raise KeyboardInterrupt
 
 
 @contextmanager
