@@ -544,21 +544,28 @@ def support_plane_truth(t: np.ndarray, feet_world: np.ndarray, contact: np.ndarr
     the feet in contact (and, given the true normal forces, carrying at least `min_force`, as the
     estimators' planted feet), lowered by the foot radius; angles in the true heading frame.
     As `estimators.terrain.fit_plane`, fewer than three feet, or feet closer than MIN_FOOT_SPREAD
-    to a line, give no plane (NaN). The steps are fitted in groups that share a support pattern."""
+    to a line, give no plane (NaN)."""
     yaw = roll_pitch_yaw(body_rotation)[:, 2]
     support = np.asarray(contact, dtype=bool)
     if normal_forces is not None:
         support = support & (np.asarray(normal_forces) >= min_force)
     feet = np.asarray(feet_world, dtype=float) - np.asarray(body_position, dtype=float)[:, None, :]
-    coefficients = np.full((len(t), 3), np.nan)
-    patterns = support @ (1 << np.arange(support.shape[1]))
-    for pattern in np.unique(patterns):
-        steps = np.flatnonzero(patterns == pattern)
-        coefficients[steps] = support_planes(feet[steps][:, support[steps[0]]])
-    a, b, c = coefficients.T
+    a, b, c = contact_planes(feet, support).T
     height = -c / np.sqrt(1.0 + a * a + b * b) + foot_radius
     roll, pitch = heading_terrain_tilt(a, b, yaw)
     return TerrainTruth(np.asarray(t, dtype=float), roll, pitch, height)
+
+
+def contact_planes(feet: np.ndarray, contact: np.ndarray) -> np.ndarray:
+    """(N, 3) `support_planes` of the feet (N, 6, 3) in contact (N, 6) at each step; the steps are
+    fitted in groups that share a contact pattern."""
+    contact = np.asarray(contact, dtype=bool)
+    planes = np.full((len(feet), 3), np.nan)
+    patterns = contact @ (1 << np.arange(contact.shape[1]))
+    for pattern in np.unique(patterns):
+        steps = np.flatnonzero(patterns == pattern)
+        planes[steps] = support_planes(feet[steps][:, contact[steps[0]]])
+    return planes
 
 
 def support_planes(points: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
-from estimators.scoring import METRIC_KEYS, StreamingScore, support_planes
+from estimators.scoring import METRIC_KEYS, StreamingScore, contact_planes
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
 
@@ -161,15 +161,8 @@ def support_plane_heights(body: np.ndarray, feet: np.ndarray, contact: np.ndarra
     """(N,) vertical height of the body origin (N, 3) above the ground its feet stand on: the
     least-squares plane through the centres of the feet in contact (N, 6, 3; contact (N, 6)),
     lowered by the foot radius along its normal (the estimators' support plane,
-    `estimators.scoring.support_planes`); NaN where that gives no plane."""
-    relative = feet - body[:, None, :]
-    contact = np.asarray(contact, dtype=bool)
-    planes = np.full((len(body), 3), np.nan)
-    patterns = contact @ (1 << np.arange(contact.shape[1]))
-    for pattern in np.unique(patterns):
-        steps = np.flatnonzero(patterns == pattern)
-        planes[steps] = support_planes(relative[steps][:, contact[steps[0]]])
-    a, b, c = planes.T
+    `estimators.scoring.contact_planes`); NaN where that gives no plane."""
+    a, b, c = contact_planes(feet - body[:, None, :], contact).T
     return -c + foot_radius * np.sqrt(1.0 + a * a + b * b)
 
 
