@@ -13,7 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import testbed
-from testbed.gym_env import HexapodTestbedEnv, Transition, roll_pitch_yaw
+from testbed.gym_env import HexapodTestbedEnv, Transition
 from testbed.model.kinematics import foot_positions
 
 ENV_ID = "HexapodTestbed-v0"
@@ -154,11 +154,6 @@ def test_control_period_must_be_a_multiple_of_the_physics_step():
     assert HexapodTestbedEnv(control_period=0.02, estimator=None).physics_steps == 20
     with pytest.raises(testbed.model.errors.ConfigError):
         HexapodTestbedEnv(control_period=0.0125)
-
-
-def test_roll_pitch_yaw_of_a_rotation():
-    c, s = np.cos(0.3), np.sin(0.3)
-    assert roll_pitch_yaw(np.array([[1, 0, 0], [0, c, -s], [0, s, c]])) == pytest.approx((0.3, 0.0, 0.0))
 
 
 def test_gymnasium_make_limits_episodes_to_1000_steps_or_as_asked():
