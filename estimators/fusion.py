@@ -723,7 +723,7 @@ def imu_sample_and_pose(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
     """`imu_sample` of readings that are missing where they are not finite (MISSING), then
     `current_pose` of the nominal IMU-point position and velocity with the lever arm:
     (status, qx, qy, qz, qw, roll, pitch, yaw, (position, velocity))."""
-    status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(record, gyro, accel, True, True, dt)
+    status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(record, gyro, accel, dt)
     return status, qx, qy, qz, qw, roll, pitch, yaw, current_pose(record, position, velocity, lever)
 
 

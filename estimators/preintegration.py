@@ -84,17 +84,15 @@ def _preintegrate(record: np.ndarray, rate: np.ndarray, accel: np.ndarray, dt: f
 
 
 @njit(cache=True)
-def imu_sample(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray, have_gyro: bool, have_accel: bool,
-               dt: float) -> tuple:
+def imu_sample(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray, dt: float) -> tuple:
     """One IMU sample (body frame): gate its specific force, add the interval since the previous
-    sample (if dt > 0), remember the sample. A reading is missing unless its `have_` flag is set
-    and it is finite. The record's `gate` is the largest squared body acceleration accepted; a
+    sample (if dt > 0), remember the sample. A reading is missing unless it is finite. The record's `gate` is the largest squared body acceleration accepted; a
     missing or rejected sample is replaced by the last one (the body acceleration of the last good
     sample is held). Returns (status, qx, qy, qz, qw, roll, pitch, yaw) with the attitude now."""
     p = record[0]
     # The sum is finite only if every component is (as Estimator._to_body tests it).
-    have_gyro = have_gyro and math.isfinite(gyro[0] + gyro[1] + gyro[2])
-    have_accel = have_accel and math.isfinite(accel[0] + accel[1] + accel[2])
+    have_gyro = math.isfinite(gyro[0] + gyro[1] + gyro[2])
+    have_accel = math.isfinite(accel[0] + accel[1] + accel[2])
     q = current_attitude(record)
     status = MISSING
     if have_accel:

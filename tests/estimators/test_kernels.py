@@ -246,7 +246,7 @@ def test_drift_statistic_equals_the_numpy_products():
 
 @pytest.mark.parametrize("missing", [None, "gyro", "accel", "both"])
 def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
-    """fusion.imu_sample_and_pose against preintegration.imu_sample (a missing reading flagged)
+    """fusion.imu_sample_and_pose against preintegration.imu_sample (a missing reading as NaN)
     followed by fusion.current_pose, on two copies of one interval."""
     rng = np.random.default_rng(5)
     a, b = Preintegration(9.81, 4.0, 0.1), Preintegration(9.81, 4.0, 0.1)
@@ -257,10 +257,10 @@ def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
     for _ in range(4):
         gyro, accel = rng.normal(0, 0.3, 3), np.array([0.1, -0.2, 9.8]) + rng.normal(0, 0.5, 3)
         have_gyro, have_accel = missing not in ("gyro", "both"), missing not in ("accel", "both")
-        expected = imu_sample(a.record, gyro, accel, have_gyro, have_accel, 0.001)
+        gyro, accel = gyro if have_gyro else MISSING, accel if have_accel else MISSING
+        expected = imu_sample(a.record, gyro, accel, 0.001)
         expected_pose = current_pose(a.record, position, velocity, lever)
-        *sample, pose = imu_sample_and_pose(b.record, gyro if have_gyro else MISSING, accel if have_accel else MISSING,
-                                            0.001, position, velocity, lever)
+        *sample, pose = imu_sample_and_pose(b.record, gyro, accel, 0.001, position, velocity, lever)
         assert tuple(sample) == expected
         np.testing.assert_allclose(pose, expected_pose, rtol=1e-12, atol=1e-14)
     assert a.record.tobytes() == b.record.tobytes()
