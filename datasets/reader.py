@@ -411,10 +411,9 @@ def replay_inputs(path: str | Path, topics: Collection[str], block_size: int) ->
             yield from _blocks_chunk_by_chunk(stream, chunk_indexes, state, order)
     if chunk_indexes is None:
         recording = read_recording(path, frozenset(topics) | SCORING_TOPICS)
-        order = HandingOrder(recording.plugin_sample_classes(), block_size)
-        for topic in order.topics:
-            order.add(topic, recording.messages.get(topic, []))
-    yield from order.blocks()
+        yield from recording.sample_blocks(block_size)
+    else:
+        yield from order.blocks()
     yield recording.scoring_truth()
 
 
