@@ -14,7 +14,6 @@ import queue
 import signal
 import threading
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from typing import Any, TypeVar
@@ -26,19 +25,6 @@ ITEMS_AHEAD = 32      # items a streaming producer makes before the consumer tak
 
 def can_fork() -> bool:
     return "fork" in multiprocessing.get_all_start_methods()
-
-
-@contextmanager
-def in_background(function: Callable[..., T], *args: Any) -> Iterator[Callable[[], T]]:
-    """`function(*args)` computed in the background; yields the call that waits for its value (or
-    raises its exception)."""
-    if not can_fork():
-        value = function(*args)
-        yield lambda: value
-        return
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                             initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
-        yield pool.submit(function, *args).result
 
 
 @contextmanager

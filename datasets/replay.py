@@ -18,7 +18,7 @@ from pathlib import Path
 
 from datasets import codec, schemas
 from datasets.background import exchanged_in_background
-from datasets.reader import SCORING_TOPICS, Recording, SampleBlock, read_recording, replay_inputs
+from datasets.reader import Recording, SampleBlock, read_recording, replay_inputs
 from datasets.recorder import DatasetWriter
 from datasets.scoring import ScoringTruth, score_as_they_come
 from estimators.base import Estimate, estimate_batches
@@ -166,10 +166,6 @@ def sample_topics(estimator_spec: str) -> frozenset[str]:
     """The topics of the samples the estimator reads (`Estimator.sample_types`)."""
     types = resolve_estimator(estimator_spec).sample_types
     return EVERY_SENSOR_TOPIC if types is None else frozenset(codec.sample_topic(kind).name for kind in types)
-
-
-def read_scoring_truth(path: str | Path) -> ScoringTruth:
-    return read_recording(path, topics=SCORING_TOPICS).scoring_truth()
 
 
 def write_replayed(recording: Recording, out: Path, config: Config, estimates: list[Estimate], metrics: dict) -> None:

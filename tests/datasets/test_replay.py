@@ -14,9 +14,8 @@ from mcap.reader import make_reader
 
 from datasets import codec, schemas
 from datasets import reader
-from datasets.reader import SampleBlock, read_recording, replay_inputs
-from datasets.background import in_background
-from datasets.replay import older_objects_left_alone, read_scoring_truth, replay, sample_topics
+from datasets.reader import SCORING_TOPICS, SampleBlock, read_recording, replay_inputs
+from datasets.replay import older_objects_left_alone, replay, sample_topics
 from datasets.scoring import ScoringTruth, score_as_they_come, score_run
 from estimators.registry import make_estimator
 from estimators.scoring import METRIC_KEYS, estimate_arrays
@@ -97,18 +96,6 @@ def test_an_imu_only_estimator_replays_from_the_imu_topic_to_its_per_sample_esti
             np.testing.assert_allclose(replayed.gyro_bias_cov, live.gyro_bias_cov, rtol=1e-12, atol=0)
 
 
-def test_the_scoring_truth_is_read_beside_the_replay_and_its_errors_come_back(tmp_path):
-    assert in_background_value(sum, [1, 2, 3]) == 6
-    missing = tmp_path / "missing.mcap"
-    with pytest.raises(UserError, match="missing.mcap"):
-        in_background_value(read_scoring_truth, missing)
-
-
-def in_background_value(function, *args):
-    with in_background(function, *args) as value:
-        return value()
-
-
 def test_a_replay_written_to_a_file_gives_the_estimator_only_its_sample_types(ekf_run, tmp_path):
     """With --out every topic is read; the IMU-only estimator must still get the IMU samples alone."""
     _, _, path = ekf_run
@@ -187,7 +174,7 @@ def test_the_replay_inputs_are_the_recordings_samples_then_its_truth(ekf_run, tm
     _, _, path = ekf_run
     samples, truth = streamed(path)
     assert_same_samples(samples, read_recording(path).samples())
-    assert_same_truth(truth, read_scoring_truth(path))
+    assert_same_truth(truth, read_recording(path, SCORING_TOPICS).scoring_truth())
     replayed = tmp_path / "replayed.mcap"
     replay(path, "complementary", out=replayed)
     assert_same_samples(streamed(replayed)[0], samples)
@@ -240,7 +227,7 @@ def test_the_collector_leaves_older_objects_alone_during_a_replay_and_still_coll
 def test_estimates_scored_as_they_come_score_as_all_at_once(ekf_run, part):
     config, ticks, path = ekf_run
     estimates = [estimate for tick in ticks for estimate in tick.estimates]
-    truth = read_scoring_truth(path)
+    truth = read_recording(path, SCORING_TOPICS).scoring_truth()
     parts = (estimate_arrays(estimates[first:first + part]) for first in range(0, len(estimates), part))
     whole = score_run(config, truth, estimates)
     assert whole["roll_rmse_deg"] is not None and whole["position_rmse_m"] is not None
