@@ -214,9 +214,10 @@ class PoseSums:
     decimated: list = field(default_factory=list)   # per block: t, estimated and true positions and quaternions
 
     def add(self, estimates: EstimateArrays, scored: np.ndarray, attitude_error: np.ndarray,
-            true_rotation: np.ndarray, truth: PoseTruth, frame: StartFrame, start: float) -> None:
-        """Add the estimates `scored` (mask), given their (roll, pitch) errors and true rotations
-        (world_from_body, one per scored estimate)."""
+            true_rotation: np.ndarray, true_yaw: np.ndarray, truth: PoseTruth, frame: StartFrame,
+            start: float) -> None:
+        """Add the estimates `scored` (mask), given their (roll, pitch) errors, true rotations
+        (world_from_body, one per scored estimate) and true ZYX yaws (rad, world frame)."""
         if estimates.position is None or estimates.velocity is None:
             self.without_pose = True
             return
@@ -224,8 +225,7 @@ class PoseSums:
         true_position, true_velocity = truth.at(t, frame)
         position_error = estimates.position[scored] - true_position
         velocity_error = estimates.velocity[scored] - true_velocity
-        true_yaw = roll_pitch_yaw(true_rotation)[:, 2] - frame.yaw
-        yaw_error = wrap(estimates.yaw[scored] - true_yaw)
+        yaw_error = wrap(estimates.yaw[scored] - (true_yaw - frame.yaw))
         self.scored += len(t)
         self.velocity_squares, self.velocity_count = _add_squares(
             self.velocity_squares, self.velocity_count, np.linalg.norm(velocity_error, axis=1))
@@ -250,9 +250,10 @@ class PoseSums:
             return
         self.next_slot = int(slots[first[-1]]) + 1
         true_quaternion = (Rotation.from_euler("z", -frame.yaw) * Rotation.from_matrix(true_rotation[first])).as_quat()
-        euler = np.column_stack([estimates.yaw, estimates.pitch, estimates.roll])[scored][first]
+        rows = np.flatnonzero(scored)[first]
+        euler = np.column_stack([estimates.yaw[rows], estimates.pitch[rows], estimates.roll[rows]])
         estimated_quaternion = Rotation.from_euler("ZYX", euler).as_quat()
-        self.decimated.append((t[first], estimates.position[scored][first], true_position[first],
+        self.decimated.append((t[first], estimates.position[rows], true_position[first],
                                estimated_quaternion, true_quaternion))
 
     def metrics(self) -> dict:
@@ -348,7 +349,7 @@ class ScoreSums:
             self.with_terrain = True
             self._add_terrain(estimates, terrain_truth, scored_from, slope_from)
         if pose_truth is not None:
-            self.pose.add(estimates, scored, error, true_rotation, *pose_truth, scored_from)
+            self.pose.add(estimates, scored, error, true_rotation, true_rpy[:, 2], *pose_truth, scored_from)
 
     def _add_terrain(self, estimates: EstimateArrays, truth: TerrainTruth, height_from: float,
                      slope_from: float) -> None:
