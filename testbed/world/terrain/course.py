@@ -18,10 +18,9 @@ from testbed.model.validation import require
 from testbed.world.config import CourseSegment, TerrainConfig
 from testbed.world.terrain.base import Terrain
 from testbed.world.terrain.bins import BoxBins
-from testbed.world.terrain.geometry import BASE_DEPTH, Boxes, EVERY_BOX, axis_aligned_boxes, candidate_rule
+from testbed.world.terrain.geometry import BASE_DEPTH, EVERY_BOX, MAX_BLOCKS, Boxes, axis_aligned_boxes, candidate_rule
 
 LEVEL, RAMP, ROUGH = "level", "ramp", "rough"
-MAX_BLOCKS = 20000      # boxes DART and the recorder can take (as rough ground)
 # m beyond a foot's diameter within which boxes are a foot's candidates: more than the support
 # check's ground tolerance (1 mm).
 CANDIDATE_REACH = 0.01

@@ -25,6 +25,7 @@ from numba import njit
 from testbed.world.records import one_record, the_record
 
 BASE_DEPTH = 0.1   # m, thickness of ground below its lowest top surface
+MAX_BLOCKS = 20000      # boxes DART and the recorder can take
 NO_BOX = -1        # a candidate index naming no box
 
 BOX = np.dtype([("center", np.float64, (3,)), ("half_extents", np.float64, (3,)), ("rotation", np.float64, (3, 3))])

@@ -8,10 +8,8 @@ from testbed.model.errors import ConfigError
 from testbed.model.validation import require
 from testbed.world.config import TerrainConfig
 from testbed.world.terrain.base import Terrain
-from testbed.world.terrain.geometry import BASE_DEPTH, Boxes, axis_aligned_boxes
+from testbed.world.terrain.geometry import BASE_DEPTH, MAX_BLOCKS, Boxes, axis_aligned_boxes
 from testbed.world.terrain.grid import GridTerrain
-
-MAX_BLOCKS = 20000      # boxes DART and the recorder can take
 
 
 class FlatTerrain(Terrain):
@@ -76,9 +74,9 @@ class RoughTerrain(GridTerrain):
     name = "rough"
 
     def __init__(self, config: TerrainConfig, rng: np.random.Generator):
-        x0, x1, y0, y1 = config.extent
+        x0, _, y0, _ = config.extent
         cell = config.rough_cell
-        nx, ny = int(np.ceil((x1 - x0) / cell)), int(np.ceil((y1 - y0) / cell))
+        nx, ny = rough_grid_shape(config)
         tops = rng.uniform(-config.rough_amplitude, config.rough_amplitude, (nx, ny))
         gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny), indexing="ij")
         tops[np.hypot(gx + cell / 2, gy + cell / 2) < config.flat_start_radius] = 0.0
@@ -88,11 +86,16 @@ class RoughTerrain(GridTerrain):
     def check_config(cls, config) -> None:
         """Only rough ground builds blocks over the whole extent: the other presets build a few
         boxes whatever its size."""
-        x0, x1, y0, y1 = config.terrain.extent
-        cell = config.terrain.rough_cell
-        blocks = int(np.ceil((x1 - x0) / cell)) * int(np.ceil((y1 - y0) / cell))
+        nx, ny = rough_grid_shape(config.terrain)
+        blocks = nx * ny
         require(blocks <= MAX_BLOCKS, f"terrain.extent / rough_cell gives {blocks} blocks, more than {MAX_BLOCKS}")
 
     @classmethod
     def from_config(cls, config, rng: np.random.Generator) -> "RoughTerrain":
         return cls(config.terrain, rng)
+
+
+def rough_grid_shape(config: TerrainConfig) -> tuple[int, int]:
+    """(cells along x, cells along y) of rough ground's blocks over `terrain.extent`."""
+    x0, x1, y0, y1 = config.extent
+    return int(np.ceil((x1 - x0) / config.rough_cell)), int(np.ceil((y1 - y0) / config.rough_cell))
