@@ -9,10 +9,8 @@ config therefore produces bit-identical estimates again.
 
 from __future__ import annotations
 
-import gc
 import time
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +24,7 @@ from estimators.scoring import EstimateArrays, estimate_arrays
 from estimators.registry import make_estimator, resolve_estimator
 from sensors.samples import Sample
 from testbed.runtime.config import Config
+from testbed.runtime.garbage import older_objects_left_alone
 
 NEEDED_TOPICS = (schemas.IMU.name, schemas.TRUTH_POSE.name, schemas.TRUTH_FEET.name)
 EVERY_SENSOR_TOPIC = frozenset({schemas.SENSOR_PREFIX})
@@ -72,24 +71,6 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
     if out is not None:
         write_replayed(recording, Path(out), config, estimates, metrics)
     return ReplayResult(metrics, estimates, counted.count, recording.truncation_note())
-
-
-@contextmanager
-def older_objects_left_alone() -> Iterator[None]:
-    """Within the block the cyclic garbage collector leaves the objects that exist before it alone
-    (`gc.freeze`). A replay keeps an object per estimate, 60 000 a simulated minute: the full
-    collections their number triggers would otherwise also scan every object of the libraries
-    loaded, each time (about 0.15 s each, twice in a minute's replay). The block's own garbage is
-    still collected. Where objects are frozen already (by the program, before forking its workers),
-    nothing changes."""
-    if gc.get_freeze_count():
-        yield
-        return
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def without_progress(samples: Iterable[Sample], span_s: float) -> Iterable[Sample]:

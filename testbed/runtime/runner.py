@@ -25,6 +25,7 @@ from testbed.control.command import Command
 from testbed.control.controller import CONTROLLERS, Controller, checked_targets
 from testbed.control.pilot import Pilot
 from testbed.model.errors import PluginError, PluginFailure, SimulationDiverged
+from testbed.runtime.garbage import older_objects_left_alone
 from testbed.runtime.interrupts import held_interrupts
 from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
@@ -132,17 +133,16 @@ def fewer_garbage_collections() -> Iterator[None]:
     most of which the recorder and the metrics keep: with the default thresholds the collector
     walked them every 700 allocations, and now and then the ~160k objects of the imported
     libraries too, a noticeable share of the loop's time. The objects made
-    before the run are left out of collections (gc.freeze), and the youngest generation is
+    before the run are left out of collections (`older_objects_left_alone`), and the youngest generation is
     collected every GC_ALLOCATIONS allocations. The loop makes no cyclic garbage of note; the
     results do not depend on when it is collected."""
     thresholds = gc.get_threshold()
-    gc.freeze()
     gc.set_threshold(GC_ALLOCATIONS, *thresholds[1:])
     try:
-        yield
+        with older_objects_left_alone():
+            yield
     finally:
         gc.set_threshold(*thresholds)
-        gc.unfreeze()
 
 
 def compilation_timer(listener: TimingListener) -> ContextManager[TimingListener]:

@@ -15,13 +15,14 @@ from mcap.reader import make_reader
 from datasets import codec, schemas
 from datasets import reader
 from datasets.reader import SCORING_TOPICS, SampleBlock, read_recording, replay_inputs
-from datasets.replay import older_objects_left_alone, replay, sample_topics
+from datasets.replay import replay, sample_topics
 from datasets.scoring import ScoringTruth, score_as_they_come, score_run
 from estimators.registry import make_estimator
 from estimators.scoring import METRIC_KEYS, estimate_arrays
 from sensors.samples import ImuSample
 from tests.datasets.conftest import run_rerun
 from testbed.model.errors import UserError
+from testbed.runtime.garbage import older_objects_left_alone
 from tests.datasets.test_roundtrip import assert_same_estimate, assert_same_sample
 
 EVERY_SENSOR = frozenset({schemas.SENSOR_PREFIX})
