@@ -53,6 +53,9 @@ class FusionConfig:
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
     bias_fault_std: float              # rad/s, uncertainty added to the gyro bias when it did
     use_gyro: bool = True              # False: the body rate from the accelerometer array alone (estimators/accel_array.py)
+    # m/N: how far a planted foot slides along the ground per newton of load change; the feet move
+    # together with their loads (docs/estimators.md, "Feet that slide as their load changes").
+    foot_shear_per_newton: float = 4.0e-4
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
@@ -64,6 +67,7 @@ class FusionConfig:
         non_negative("estimators.ekf.gyro_scale_std", self.gyro_scale_std)
         non_negative("estimators.ekf.foot_creep_accel_std", self.foot_creep_accel_std)
         non_negative("estimators.ekf.foot_sink_per_newton", self.foot_sink_per_newton)
+        non_negative("estimators.ekf.foot_shear_per_newton", self.foot_shear_per_newton)
         non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
         non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
         positive("estimators.ekf still window", self.still_window, self.still_max_rate_dps, self.still_max_force_change,
