@@ -48,14 +48,12 @@ class FusionConfig:
     foot_slip_std: float               # m/sqrt(s), random walk of a stance foot on the ground
     foot_creep_accel_std: float        # m/s^2, systematic acceleration of the stance feet's creep
     foot_sink_per_newton: float        # m/N: how far a planted foot sinks per newton of load it takes (ground compliance)
+    foot_shear_per_newton: float       # m/N: how far a planted foot slides along the ground per newton of load change
     foot_gate_probability: float       # chi-square gate (3 dof) of a foot's innovation; beyond it, it slipped
     bias_fault_window: float           # s, span over which the tilt corrections are summed
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
     bias_fault_std: float              # rad/s, uncertainty added to the gyro bias when it did
     use_gyro: bool = True              # False: the body rate from the accelerometer array alone (estimators/accel_array.py)
-    # m/N: how far a planted foot slides along the ground per newton of load change; the feet move
-    # together with their loads (docs/estimators.md, "Feet that slide as their load changes").
-    foot_shear_per_newton: float = 4.0e-4
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
