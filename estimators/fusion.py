@@ -52,6 +52,7 @@ from __future__ import annotations
 import abc
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -376,6 +377,8 @@ class FusionEstimator(Estimator):
         self._accel_rejected_since: float | None = None
         self._output: tuple | None = None
         self._pose_covariances: tuple = (None, None)      # position_cov, velocity_cov of the last step
+        self._output_settings = np.zeros(1, dtype=OUTPUT_SETTINGS)
+        self._output_settings[0] = self.imu_position, ROLLING_STD * ROLLING_SHARE if params.rolling_feet else 0.0
         self._start_position = np.zeros(3)   # m, world: the IMU point at the start
         self._loads = np.zeros(NUM_FEET)      # N, the feet's latest normal forces
         self._step_loads = np.zeros(NUM_FEET)  # N, as they were at the last encoder sample
@@ -684,23 +687,67 @@ class FusionEstimator(Estimator):
     def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
         """The outputs recomputed at each step (they change little within one): the attitude
         covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
-        state = self.state
-        rate = self.pre.last_gyro - state.bias
-        position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
-        if self.params.rolling_feet:
-            walked = state.position - self._start_position
-            walked[2] = 0.0         # the spheres roll along the ground
-            scale_error = ROLLING_STD * ROLLING_SHARE * walked      # m, std of the position's scale error
-            position_cov += scale_error[:, None] * scale_error
-        self._pose_covariances = position_cov, velocity_cov
-        terrain = self.terrain
+        state, terrain = self.state, self.terrain
         if terrain.x is None:
-            return (*output_covariances(self.P, state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
-                    None, None, None, None)
-        terrain_roll, terrain_pitch, height, covariance, growth = terrain.heading_output(yaw)
-        attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, state.bias, roll, pitch, covariance,
-                                                                       growth, max(0.0, t - terrain.t))
-        return attitude_cov, bias, bias_cov, terrain_roll, terrain_pitch, height, terrain_cov
+            terrain_angles, growth = (None, None, None), NO_TERRAIN
+        else:
+            terrain_roll, terrain_pitch, height, covariance, rate = terrain.heading_output(yaw)
+            terrain_angles = terrain_roll, terrain_pitch, height
+            growth = TerrainGrowth(covariance, rate, max(0.0, t - terrain.t))
+        attitude_cov, bias, bias_cov, terrain_cov, position_cov, velocity_cov = step_covariances(
+            self.P, StepState(state.q, state.velocity, state.bias, state.position, self._start_position,
+                              self.pre.last_gyro), self._output_settings, roll, pitch, growth)
+        self._pose_covariances = position_cov, velocity_cov
+        return attitude_cov, bias, bias_cov, *terrain_angles, None if terrain.x is None else terrain_cov
+
+
+class StepState(NamedTuple):
+    """The nominal state a step's outputs are computed from (`step_covariances`)."""
+    q: rot.Quaternion
+    velocity: np.ndarray        # (3,) m/s, IMU point, body frame
+    gyro_bias: np.ndarray       # (3,) rad/s
+    position: np.ndarray        # (3,) m, IMU point, world frame
+    start_position: np.ndarray  # (3,) m, the IMU point at the start
+    last_gyro: np.ndarray       # (3,) rad/s, the last gyro reading (bias included)
+
+
+class TerrainGrowth(NamedTuple):
+    """The terrain output's covariance at its last update, its growth per second, and the time
+    since that update (s): `grown_covariance`'s inputs."""
+    covariance: np.ndarray
+    rate: np.ndarray
+    elapsed: float
+
+
+NO_TERRAIN = TerrainGrowth(ZERO33, ZERO33, 0.0)     # before the first support plane
+
+# The estimator's constants that its step outputs read, fields by name (`step_covariances`): the
+# lever arm of the IMU point (m, body frame) and the std of the position's scale error per metre
+# walked (0 without rolling feet; module docstring).
+OUTPUT_SETTINGS = np.dtype([("lever", "f8", 3), ("scale_error", "f8")])
+
+
+# Compiled: one call per filter step for all of its covariance outputs.
+@njit(cache=True)
+def step_covariances(P: np.ndarray, state: StepState, settings: np.ndarray, roll: float, pitch: float,
+                     terrain: TerrainGrowth) -> tuple:
+    """(attitude_cov, gyro bias, its covariance, terrain covariance, position_cov, velocity_cov),
+    new arrays: `output_covariances` at the attitude (roll, pitch) and `pose_covariances` of the
+    nominal state, the position's widened by the rolling feet's scale error along the horizontal
+    distance walked (ROLLING_SHARE, module docstring), with the OUTPUT_SETTINGS record `settings`."""
+    s = settings[0]
+    rate = state.last_gyro - state.gyro_bias
+    position_cov, velocity_cov = pose_covariances(P, state.q, state.velocity, rate, s.lever)
+    if s.scale_error > 0.0:
+        walked = state.position - state.start_position
+        walked[2] = 0.0         # the spheres roll along the ground
+        scale_error = s.scale_error * walked      # m, std of the position's scale error
+        for i in range(3):
+            for j in range(3):
+                position_cov[i, j] += scale_error[i] * scale_error[j]
+    attitude_cov, bias, bias_cov, terrain_cov = output_covariances(P, state.gyro_bias, roll, pitch, terrain.covariance,
+                                                                   terrain.rate, terrain.elapsed)
+    return attitude_cov, bias, bias_cov, terrain_cov, position_cov, velocity_cov
 
 
 # Compiled: it runs at every filter step.
