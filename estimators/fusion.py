@@ -443,11 +443,11 @@ class FusionEstimator(Estimator):
         """As Estimator's, and a reading that is not finite counts as missing too."""
         if self.state is None:
             return self._initialise(t, gyro, accel)
-        dt = t - self.t
-        gyro = self._gyro_input(t, gyro, max(dt, 0.0))
+        dt = max(t - self.t, 0.0)
+        gyro = self._gyro_input(t, gyro, dt)
         state = self.state
-        status, qx, qy, qz, qw, roll, pitch, yaw, pose = imu_sample_and_pose(
-            self.pre.record, MISSING if gyro is None else gyro, MISSING if accel is None else accel, max(dt, 0.0),
+        status, interval, quaternion, roll, pitch, yaw, position, velocity = imu_sample_and_pose(
+            self.pre.record, MISSING if gyro is None else gyro, MISSING if accel is None else accel, dt,
             state.position, state.velocity, self.imu_position)
         if dt > 0:
             self.t = t
@@ -456,12 +456,12 @@ class FusionEstimator(Estimator):
             self._accel_rejected_since = None
         elif status == REJECTED and self._accel_rejected(t, accel):
             nominal = True
-        if self.pre.dt >= MAX_STEP:
+        if interval >= MAX_STEP:
             self._step()
             nominal = True
         if nominal:
             return self._estimate(t)
-        return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw, pose)
+        return self._attitude_estimate(t, quaternion, roll, pitch, yaw, position, velocity)
 
     def _gyro_input(self, t: float, gyro: np.ndarray | None, dt: float) -> np.ndarray | None:
         """The rate the filter integrates for this sample (body frame, bias included), or None.
@@ -668,21 +668,21 @@ class FusionEstimator(Estimator):
     # -- output --------------------------------------------------------------------------------
 
     def _estimate(self, t: float) -> Estimate:
-        """The estimate with the nominal attitude."""
-        q = self.state.q
-        return self._attitude_estimate(t, *q, *rot.euler_from_quaternion(q))
+        """The estimate with the nominal attitude and the pose now (`current_pose`)."""
+        state = self.state
+        q = state.q
+        return self._attitude_estimate(t, np.array(q), *rot.euler_from_quaternion(q),
+                                       *current_pose(self.pre.record, state.position, state.velocity,
+                                                     self.imu_position))
 
-    def _attitude_estimate(self, t: float, qx: float, qy: float, qz: float, qw: float, roll: float, pitch: float,
-                           yaw: float, pose: tuple[np.ndarray, np.ndarray] | None = None) -> Estimate:
-        """The estimate with this attitude (qx, qy, qz, qw, roll, pitch, yaw) and pose (`current_pose`,
-        computed when not given); its covariance, the bias and the terrain of the last step (they
-        change little within a step, and are recomputed only there)."""
+    def _attitude_estimate(self, t: float, quaternion: np.ndarray, roll: float, pitch: float, yaw: float,
+                           position: np.ndarray, velocity: np.ndarray) -> Estimate:
+        """The estimate with this attitude (quaternion x, y, z, w; roll, pitch, yaw) and pose; its
+        covariance, the bias and the terrain of the last step (they change little within a step,
+        and are recomputed only there)."""
         if self._output is None:
             self._output = self._step_output(t, roll, pitch, yaw)
-        if pose is None:
-            state = self.state
-            pose = current_pose(self.pre.record, state.position, state.velocity, self.imu_position)
-        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output, *pose, *self._pose_covariances)
+        return Estimate(t, quaternion, roll, pitch, yaw, *self._output, position, velocity, *self._pose_covariances)
 
     def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
         """The outputs recomputed at each step (they change little within one): the attitude
@@ -769,9 +769,11 @@ def imu_sample_and_pose(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
                         velocity: np.ndarray, lever: np.ndarray) -> tuple:
     """`imu_sample` of readings that are missing where they are not finite (MISSING), then
     `current_pose` of the nominal IMU-point position and velocity with the lever arm:
-    (status, qx, qy, qz, qw, roll, pitch, yaw, (position, velocity))."""
+    (status, the interval preintegrated so far (s), the attitude now as a quaternion array
+    (x, y, z, w), roll, pitch, yaw, position, velocity)."""
     status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(record, gyro, accel, dt)
-    return status, qx, qy, qz, qw, roll, pitch, yaw, current_pose(record, position, velocity, lever)
+    position_now, velocity_now = current_pose(record, position, velocity, lever)
+    return status, record[0].dt, np.array((qx, qy, qz, qw)), roll, pitch, yaw, position_now, velocity_now
 
 
 # Compiled: it runs at every filter step, on 3x3 blocks where numpy's per-call cost dominates.

@@ -283,7 +283,9 @@ def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
         gyro, accel = gyro if have_gyro else MISSING, accel if have_accel else MISSING
         expected = imu_sample(a.record, gyro, accel, 0.001)
         expected_pose = current_pose(a.record, position, velocity, lever)
-        *sample, pose = imu_sample_and_pose(b.record, gyro, accel, 0.001, position, velocity, lever)
-        assert tuple(sample) == expected
-        np.testing.assert_allclose(pose, expected_pose, rtol=1e-12, atol=1e-14)
+        status, interval, quaternion, *angles, position_now, velocity_now = imu_sample_and_pose(
+            b.record, gyro, accel, 0.001, position, velocity, lever)
+        assert (status, *quaternion, *angles) == expected
+        assert interval == a.dt
+        np.testing.assert_allclose((position_now, velocity_now), expected_pose, rtol=1e-12, atol=1e-14)
     assert a.record.tobytes() == b.record.tobytes()
