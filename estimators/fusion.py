@@ -51,7 +51,9 @@ from __future__ import annotations
 
 import abc
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -376,6 +378,8 @@ class FusionEstimator(Estimator):
         self._accel_rejected_since: float | None = None
         self._output: tuple | None = None
         self._pose_covariances: tuple = (None, None)      # position_cov, velocity_cov of the last step
+        self._output_settings = np.zeros(1, dtype=OUTPUT_SETTINGS)
+        self._output_settings[0] = self.imu_position, ROLLING_STD * ROLLING_SHARE if params.rolling_feet else 0.0
         self._start_position = np.zeros(3)   # m, world: the IMU point at the start
         self._loads = np.zeros(NUM_FEET)      # N, the feet's latest normal forces
         self._step_loads = np.zeros(NUM_FEET)  # N, as they were at the last encoder sample
@@ -436,29 +440,143 @@ class FusionEstimator(Estimator):
             return None
         return super().update(sample)
 
+    def update_batch(self, samples: Iterable[Sample]) -> list[Estimate]:
+        """As `update` one at a time. Once the filter is initialised, without an accelerometer array
+        or a mounting rotation, the IMU samples between two encoder samples go through one compiled
+        loop (`imu_samples`); the samples it leaves or stops at go the per-sample way. The foot
+        samples among them touch only the stance tracker and the loads, which only a filter step
+        reads: each is applied before the next sample handled in Python."""
+        samples = samples if isinstance(samples, Sequence) else list(samples)
+        estimates: list[Estimate] = []
+        start = 0
+        while self.state is None and start < len(samples):     # the first usable IMU sample initialises
+            estimates += super().update_batch(samples[start:start + 1])
+            start += 1
+        rest = samples[start:]
+        positions = [i for i, sample in enumerate(rest) if type(sample) is ImuSample]
+        imu = [rest[i] for i in positions]
+        readings = self._batch_readings(imu)
+        if readings is None:
+            return estimates + super().update_batch(rest)
+        batch = ImuBatch(rest, positions, imu, readings, np.empty(len(imu), dtype=IMU_OUTPUTS))
+        # The IMU samples with no sample but feet between them share a run.
+        others_before = np.cumsum([type(sample) not in (ImuSample, FootSample) for sample in rest])
+        done = 0        # samples of `rest` handled
+        for first, stop in equal_runs(others_before[positions].tolist()):
+            done = self._others(rest, done, positions[first], estimates)
+            done = self._imu_run(batch, first, stop, done, estimates)
+        self._others(rest, done, len(rest), estimates)
+        return estimates
+
+    def _others(self, samples: list[Sample], start: int, stop: int, estimates: list[Estimate]) -> int:
+        """`update` of the samples from start to stop - 1 that are not ImuSamples (those that are
+        went through `imu_samples`), appending their estimates; returns stop."""
+        for sample in samples[start:stop]:
+            if type(sample) is not ImuSample and (estimate := self.update(sample)) is not None:
+                estimates.append(estimate)
+        return stop
+
+    def _batch_readings(self, samples: list[ImuSample]) -> np.ndarray | None:
+        """The IMU samples' IMU_READINGS for `imu_samples`, or None when the per-sample path must
+        take them all: an accelerometer array or a mounting rotation, or readings that are not
+        3-vectors."""
+        if self.state is None or self.array is not None or self._body_from_imu is not None:
+            return None
+        readings = np.empty(len(samples), dtype=IMU_READINGS)
+        try:
+            for name in ("gyro", "accel"):
+                values = np.array([getattr(sample, name) for sample in samples], dtype=float)
+                if values.shape != (len(samples), 3):
+                    return None
+                readings[name] = values
+        except (ValueError, TypeError):
+            return None
+        readings["t"] = [sample.t for sample in samples]
+        return readings
+
+    def _imu_run(self, batch: ImuBatch, first: int, stop: int, done: int, estimates: list[Estimate]) -> int:
+        """Append the estimates of the batch's IMU samples first to stop - 1 through `imu_samples`,
+        which hands the samples it stops at to `_end_sample` or `update` (after the foot samples
+        before them); `done` of the batch's samples were handled before, returns how many are now."""
+        samples, positions, readings, out = batch.samples, batch.positions, batch.readings, batch.out
+        row = first
+        while row < stop:
+            state = self.state
+            last_gyro = MISSING if self._last_gyro is None else np.array(self._last_gyro)
+            count, status, self.t = imu_samples(self.pre.record, readings[row:stop], out[row:stop], self.t, last_gyro,
+                                                state.position, state.velocity, self.imu_position)
+            end = row + count
+            taken = end if status == LEFT else end + 1      # samples preintegrated
+            if taken > row:
+                gyro = readings[taken - 1]["gyro"]
+                self._last_gyro, self._gyro_repeats = (gyro[0], gyro[1], gyro[2]), 0
+            if end > row:
+                self._accel_rejected_since = None
+                estimates += self._attitude_estimates(batch, row, end)
+            if end == stop:
+                break
+            done = self._others(samples, done, positions[end], estimates)
+            sample = samples[positions[end]]
+            if status == LEFT:
+                estimate = self.update(sample)
+            else:
+                result = out[end]
+                estimate = self._end_sample(sample.t, readings[end]["accel"], status, self.pre.dt,
+                                            (result["quaternion"], float(result["roll"]), float(result["pitch"]),
+                                             float(result["yaw"]), result["position"], result["velocity"]))
+            if estimate is not None:
+                estimates.append(estimate)
+            done = positions[end] + 1
+            row = end + 1
+        return done
+
+    def _attitude_estimates(self, batch: ImuBatch, first: int, stop: int) -> list[Estimate]:
+        """`_attitude_estimate` of the batch's IMU samples first to stop - 1, from their outputs
+        (the step's outputs at the first, when they are not computed yet)."""
+        rows, imu = batch.out[first:stop], batch.imu[first:stop]
+        if self._output is None:
+            row = rows[0]
+            self._output = self._step_output(imu[0].t, float(row["roll"]), float(row["pitch"]), float(row["yaw"]),
+                                             batch.readings[first]["gyro"])
+        output, covariances = self._output, self._pose_covariances
+        return [Estimate(sample.t, quaternion, roll, pitch, yaw, *output, position, velocity, *covariances)
+                for sample, quaternion, roll, pitch, yaw, position, velocity
+                in zip(imu, rows["quaternion"], rows["roll"].tolist(), rows["pitch"].tolist(), rows["yaw"].tolist(),
+                       rows["position"], rows["velocity"])]
+
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         """As Estimator's, and a reading that is not finite counts as missing too."""
         if self.state is None:
             return self._initialise(t, gyro, accel)
-        dt = t - self.t
-        gyro = self._gyro_input(t, gyro, max(dt, 0.0))
+        dt = max(t - self.t, 0.0)
+        gyro = self._gyro_input(t, gyro, dt)
         state = self.state
-        status, qx, qy, qz, qw, roll, pitch, yaw, pose = imu_sample_and_pose(
-            self.pre.record, MISSING if gyro is None else gyro, MISSING if accel is None else accel, max(dt, 0.0),
+        status, interval, quaternion, roll, pitch, yaw, position, velocity = imu_sample_and_pose(
+            self.pre.record, MISSING if gyro is None else gyro, MISSING if accel is None else accel, dt,
             state.position, state.velocity, self.imu_position)
         if dt > 0:
             self.t = t
+        if status == ACCEPTED and interval < MAX_STEP:
+            self._accel_rejected_since = None
+            return self._attitude_estimate(t, quaternion, roll, pitch, yaw, position, velocity)
+        return self._end_sample(t, accel, status, interval, (quaternion, roll, pitch, yaw, position, velocity))
+
+    def _end_sample(self, t: float, accel: np.ndarray | None, status: int, interval: float, attitude: tuple) -> Estimate:
+        """The estimate of an IMU sample already preintegrated (`imu_sample_and_pose`, giving its
+        `status`, the `interval` so far and `attitude`: quaternion, roll, pitch, yaw, position,
+        velocity) whose specific force was not accepted or which ended the interval: the gate's
+        bookkeeping, and the filter step when the interval reached MAX_STEP."""
         nominal = False      # the sample's attitude gives way to the nominal one after a restart or a step
         if status == ACCEPTED:
             self._accel_rejected_since = None
         elif status == REJECTED and self._accel_rejected(t, accel):
             nominal = True
-        if self.pre.dt >= MAX_STEP:
+        if interval >= MAX_STEP:
             self._step()
             nominal = True
         if nominal:
             return self._estimate(t)
-        return self._attitude_estimate(t, qx, qy, qz, qw, roll, pitch, yaw, pose)
+        return self._attitude_estimate(t, *attitude)
 
     def _gyro_input(self, t: float, gyro: np.ndarray | None, dt: float) -> np.ndarray | None:
         """The rate the filter integrates for this sample (body frame, bias included), or None.
@@ -665,42 +783,88 @@ class FusionEstimator(Estimator):
     # -- output --------------------------------------------------------------------------------
 
     def _estimate(self, t: float) -> Estimate:
-        """The estimate with the nominal attitude."""
-        q = self.state.q
-        return self._attitude_estimate(t, *q, *rot.euler_from_quaternion(q))
-
-    def _attitude_estimate(self, t: float, qx: float, qy: float, qz: float, qw: float, roll: float, pitch: float,
-                           yaw: float, pose: tuple[np.ndarray, np.ndarray] | None = None) -> Estimate:
-        """The estimate with this attitude (qx, qy, qz, qw, roll, pitch, yaw) and pose (`current_pose`,
-        computed when not given); its covariance, the bias and the terrain of the last step (they
-        change little within a step, and are recomputed only there)."""
-        if self._output is None:
-            self._output = self._step_output(t, roll, pitch, yaw)
-        if pose is None:
-            state = self.state
-            pose = current_pose(self.pre.record, state.position, state.velocity, self.imu_position)
-        return Estimate(t, np.array((qx, qy, qz, qw)), roll, pitch, yaw, *self._output, *pose, *self._pose_covariances)
-
-    def _step_output(self, t: float, roll: float, pitch: float, yaw: float) -> tuple:
-        """The outputs recomputed at each step (they change little within one): the attitude
-        covariance, the bias and the terrain; the pose covariances go to `_pose_covariances`."""
+        """The estimate with the nominal attitude and the pose now (`current_pose`)."""
         state = self.state
-        rate = self.pre.last_gyro - state.bias
-        position_cov, velocity_cov = pose_covariances(self.P, state.q, state.velocity, rate, self.imu_position)
-        if self.params.rolling_feet:
-            walked = state.position - self._start_position
-            walked[2] = 0.0         # the spheres roll along the ground
-            scale_error = ROLLING_STD * ROLLING_SHARE * walked      # m, std of the position's scale error
-            position_cov += scale_error[:, None] * scale_error
-        self._pose_covariances = position_cov, velocity_cov
-        terrain = self.terrain
+        q = state.q
+        return self._attitude_estimate(t, np.array(q), *rot.euler_from_quaternion(q),
+                                       *current_pose(self.pre.record, state.position, state.velocity,
+                                                     self.imu_position))
+
+    def _attitude_estimate(self, t: float, quaternion: np.ndarray, roll: float, pitch: float, yaw: float,
+                           position: np.ndarray, velocity: np.ndarray) -> Estimate:
+        """The estimate with this attitude (quaternion x, y, z, w; roll, pitch, yaw) and pose; its
+        covariance, the bias and the terrain of the last step (they change little within a step,
+        and are recomputed only there)."""
+        if self._output is None:
+            self._output = self._step_output(t, roll, pitch, yaw, self.pre.last_gyro)
+        return Estimate(t, quaternion, roll, pitch, yaw, *self._output, position, velocity, *self._pose_covariances)
+
+    def _step_output(self, t: float, roll: float, pitch: float, yaw: float, last_gyro: np.ndarray) -> tuple:
+        """The outputs recomputed at each step (they change little within one), at the sample of
+        time t, attitude (roll, pitch, yaw) and gyro reading `last_gyro` (the rate the filter
+        integrated, bias included): the attitude covariance, the bias and the terrain; the pose
+        covariances go to `_pose_covariances`."""
+        state, terrain = self.state, self.terrain
         if terrain.x is None:
-            return (*output_covariances(self.P, state.bias, roll, pitch, ZERO33, ZERO33, 0.0)[:3],
-                    None, None, None, None)
-        terrain_roll, terrain_pitch, height, covariance, growth = terrain.heading_output(yaw)
-        attitude_cov, bias, bias_cov, terrain_cov = output_covariances(self.P, state.bias, roll, pitch, covariance,
-                                                                       growth, max(0.0, t - terrain.t))
-        return attitude_cov, bias, bias_cov, terrain_roll, terrain_pitch, height, terrain_cov
+            terrain_angles, growth = (None, None, None), NO_TERRAIN
+        else:
+            terrain_roll, terrain_pitch, height, covariance, rate = terrain.heading_output(yaw)
+            terrain_angles = terrain_roll, terrain_pitch, height
+            growth = TerrainGrowth(covariance, rate, max(0.0, t - terrain.t))
+        attitude_cov, bias, bias_cov, terrain_cov, position_cov, velocity_cov = step_covariances(
+            self.P, StepState(state.q, state.velocity, state.bias, state.position, self._start_position, last_gyro),
+            self._output_settings, roll, pitch, growth)
+        self._pose_covariances = position_cov, velocity_cov
+        return attitude_cov, bias, bias_cov, *terrain_angles, None if terrain.x is None else terrain_cov
+
+
+class StepState(NamedTuple):
+    """The nominal state a step's outputs are computed from (`step_covariances`)."""
+    q: rot.Quaternion
+    velocity: np.ndarray        # (3,) m/s, IMU point, body frame
+    gyro_bias: np.ndarray       # (3,) rad/s
+    position: np.ndarray        # (3,) m, IMU point, world frame
+    start_position: np.ndarray  # (3,) m, the IMU point at the start
+    last_gyro: np.ndarray       # (3,) rad/s, the last gyro reading (bias included)
+
+
+class TerrainGrowth(NamedTuple):
+    """The terrain output's covariance at its last update, its growth per second, and the time
+    since that update (s): `grown_covariance`'s inputs."""
+    covariance: np.ndarray
+    rate: np.ndarray
+    elapsed: float
+
+
+NO_TERRAIN = TerrainGrowth(ZERO33, ZERO33, 0.0)     # before the first support plane
+
+# The estimator's constants that its step outputs read, fields by name (`step_covariances`): the
+# lever arm of the IMU point (m, body frame) and the std of the position's scale error per metre
+# walked (0 without rolling feet; module docstring).
+OUTPUT_SETTINGS = np.dtype([("lever", "f8", 3), ("scale_error", "f8")])
+
+
+# Compiled: one call per filter step for all of its covariance outputs.
+@njit(cache=True)
+def step_covariances(P: np.ndarray, state: StepState, settings: np.ndarray, roll: float, pitch: float,
+                     terrain: TerrainGrowth) -> tuple:
+    """(attitude_cov, gyro bias, its covariance, terrain covariance, position_cov, velocity_cov),
+    new arrays: `output_covariances` at the attitude (roll, pitch) and `pose_covariances` of the
+    nominal state, the position's widened by the rolling feet's scale error along the horizontal
+    distance walked (ROLLING_SHARE, module docstring), with the OUTPUT_SETTINGS record `settings`."""
+    s = settings[0]
+    rate = state.last_gyro - state.gyro_bias
+    position_cov, velocity_cov = pose_covariances(P, state.q, state.velocity, rate, s.lever)
+    if s.scale_error > 0.0:
+        walked = state.position - state.start_position
+        walked[2] = 0.0         # the spheres roll along the ground
+        scale_error = s.scale_error * walked      # m, std of the position's scale error
+        for i in range(3):
+            for j in range(3):
+                position_cov[i, j] += scale_error[i] * scale_error[j]
+    attitude_cov, bias, bias_cov, terrain_cov = output_covariances(P, state.gyro_bias, roll, pitch, terrain.covariance,
+                                                                   terrain.rate, terrain.elapsed)
+    return attitude_cov, bias, bias_cov, terrain_cov, position_cov, velocity_cov
 
 
 # Compiled: it runs at every filter step.
@@ -722,9 +886,74 @@ def imu_sample_and_pose(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
                         velocity: np.ndarray, lever: np.ndarray) -> tuple:
     """`imu_sample` of readings that are missing where they are not finite (MISSING), then
     `current_pose` of the nominal IMU-point position and velocity with the lever arm:
-    (status, qx, qy, qz, qw, roll, pitch, yaw, (position, velocity))."""
+    (status, the interval preintegrated so far (s), the attitude now as a quaternion array
+    (x, y, z, w), roll, pitch, yaw, position, velocity)."""
     status, qx, qy, qz, qw, roll, pitch, yaw = imu_sample(record, gyro, accel, dt)
-    return status, qx, qy, qz, qw, roll, pitch, yaw, current_pose(record, position, velocity, lever)
+    position_now, velocity_now = current_pose(record, position, velocity, lever)
+    return status, record[0].dt, np.array((qx, qy, qz, qw)), roll, pitch, yaw, position_now, velocity_now
+
+
+# IMU samples in time order, one element each (body frame): `imu_samples`' input.
+IMU_READINGS = np.dtype([("t", "f8"), ("gyro", "f8", 3), ("accel", "f8", 3)])     # s, rad/s, m/s^2
+
+# `imu_sample_and_pose`'s attitude (quaternion x, y, z, w; rad) and pose (body origin, world
+# frame: m, m/s) of each sample: `imu_samples`' output.
+IMU_OUTPUTS = np.dtype([("quaternion", "f8", 4), ("roll", "f8"), ("pitch", "f8"), ("yaw", "f8"),
+                        ("position", "f8", 3), ("velocity", "f8", 3)])
+
+LEFT = -1      # `imu_samples`' status of a sample it left untouched
+
+
+class ImuBatch(NamedTuple):
+    """`FusionEstimator.update_batch`'s samples and the IMU samples among them, in order."""
+    samples: list[Sample]
+    positions: list[int]       # where the IMU samples are in `samples`
+    imu: list[ImuSample]
+    readings: np.ndarray       # IMU_READINGS of `imu`
+    out: np.ndarray            # IMU_OUTPUTS of `imu`, as `imu_samples` writes them
+
+
+# Compiled: one call per run of IMU samples between two other samples (offline replay).
+@njit(cache=True)
+def imu_samples(record: np.ndarray, readings: np.ndarray, out: np.ndarray, t: float, last_gyro: np.ndarray,
+                position: np.ndarray, velocity: np.ndarray, lever: np.ndarray) -> tuple:
+    """`imu_sample_and_pose` of the IMU_READINGS `readings` in order, each at the interval since
+    the previous sample (the first since time t, whose gyro read `last_gyro`), from the nominal
+    position and velocity with the lever arm, each sample's attitude and pose written into the
+    same element of the IMU_OUTPUTS `out`. Stops before a sample whose reading is not finite or
+    whose gyro repeats the previous reading (the stuck gyro's count), and after a sample whose
+    specific force was not accepted or which brought the interval to MAX_STEP. Returns (the index
+    it stopped at, that sample's status: LEFT when untouched, the time of the last sample
+    preintegrated)."""
+    previous = last_gyro.copy()
+    for i in range(len(readings)):
+        reading = readings[i]
+        gyro, accel = reading.gyro, reading.accel
+        if not (math.isfinite(gyro[0] + gyro[1] + gyro[2]) and math.isfinite(accel[0] + accel[1] + accel[2])) \
+                or (gyro[0] == previous[0] and gyro[1] == previous[1] and gyro[2] == previous[2]):
+            return i, LEFT, t
+        dt = max(reading.t - t, 0.0)
+        status, interval, quaternion, roll, pitch, yaw, pose_position, pose_velocity = imu_sample_and_pose(
+            record, gyro, accel, dt, position, velocity, lever)
+        if dt > 0:
+            t = reading.t
+        row = out[i]
+        row.quaternion[:] = quaternion
+        row.roll, row.pitch, row.yaw = roll, pitch, yaw
+        row.position[:] = pose_position
+        row.velocity[:] = pose_velocity
+        previous[:] = gyro
+        if status != ACCEPTED or interval >= MAX_STEP:
+            return i, status, t
+    return len(readings), LEFT, t
+
+
+def equal_runs(values: list[int]) -> list[tuple[int, int]]:
+    """The (first, stop) index ranges of `values` over which the value stays the same."""
+    if not values:
+        return []
+    edges = [0, *(np.flatnonzero(np.diff(values)) + 1).tolist(), len(values)]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 # Compiled: it runs at every filter step, on 3x3 blocks where numpy's per-call cost dominates.

@@ -10,10 +10,10 @@ from testbed.model import spatial as rot
 from estimators.base import Estimator
 from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FEET_UPDATE, correct_feet, feet_correction
-from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, MISSING, NOMINAL, POSITION, TILT_SUMS,
-                               BiasStepDetector, NominalState, current_pose, drift_statistic, foot_nis,
-                               horizontal_basis, imu_sample_and_pose, inject, output_covariances, pose_covariances,
-                               roll_feet, sink_feet)
+from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, MISSING, NO_TERRAIN, NOMINAL, OUTPUT_SETTINGS,
+                               POSITION, TILT_SUMS, BiasStepDetector, NominalState, StepState, TerrainGrowth,
+                               current_pose, drift_statistic, foot_nis, horizontal_basis, imu_sample_and_pose, inject,
+                               output_covariances, pose_covariances, roll_feet, sink_feet, step_covariances)
 from estimators.preintegration import Preintegration, imu_sample
 from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
@@ -197,6 +197,29 @@ def test_pose_covariances_equal_the_numpy_products():
     np.testing.assert_allclose(velocity_cov, J_velocity @ P @ J_velocity.T, rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize("scale_error", [0.0, 0.0125])
+@pytest.mark.parametrize("with_terrain", [False, True])
+def test_step_covariances_are_the_output_and_pose_covariances(scale_error, with_terrain):
+    """fusion.step_covariances against output_covariances and pose_covariances, the position's
+    widened by the outer product of the scale error along the horizontal distance walked."""
+    rng = np.random.default_rng(8)
+    P = random_covariance(rng, ERROR_DIM, 0.1)
+    q = rot.quaternion_from_euler(0.1, 0.2, -2.0)
+    velocity, bias, position, start, gyro, lever = (rng.normal(0.0, 0.5, 3) for _ in range(6))
+    terrain = TerrainGrowth(random_covariance(rng, 3, 0.1), np.diag([1.0, 2.0, 3.0]), 0.02) if with_terrain \
+        else NO_TERRAIN
+    settings = np.zeros(1, dtype=OUTPUT_SETTINGS)
+    settings[0] = lever, scale_error
+    outputs = step_covariances(P, StepState(q, velocity, bias, position, start, gyro), settings, 0.3, -0.2, terrain)
+    expected = [*output_covariances(P, bias, 0.3, -0.2, terrain.covariance, terrain.rate, terrain.elapsed),
+                *pose_covariances(P, q, velocity, gyro - bias, lever)]
+    walked = (position - start) * [1.0, 1.0, 0.0]
+    expected[4] = expected[4] + np.outer(scale_error * walked, scale_error * walked)
+    for output, value in zip(outputs, expected, strict=True):
+        np.testing.assert_allclose(output, value, rtol=1e-12, atol=1e-15)
+    assert outputs[1] is not bias
+
+
 def test_rolling_feet_move_and_widen_only_the_rolled_feet():
     rng = np.random.default_rng(4)
     P = random_covariance(rng, ERROR_DIM, 0.1)
@@ -268,7 +291,9 @@ def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
         gyro, accel = gyro if have_gyro else MISSING, accel if have_accel else MISSING
         expected = imu_sample(a.record, gyro, accel, 0.001)
         expected_pose = current_pose(a.record, position, velocity, lever)
-        *sample, pose = imu_sample_and_pose(b.record, gyro, accel, 0.001, position, velocity, lever)
-        assert tuple(sample) == expected
-        np.testing.assert_allclose(pose, expected_pose, rtol=1e-12, atol=1e-14)
+        status, interval, quaternion, *angles, position_now, velocity_now = imu_sample_and_pose(
+            b.record, gyro, accel, 0.001, position, velocity, lever)
+        assert (status, *quaternion, *angles) == expected
+        assert interval == a.dt
+        np.testing.assert_allclose((position_now, velocity_now), expected_pose, rtol=1e-12, atol=1e-14)
     assert a.record.tobytes() == b.record.tobytes()
