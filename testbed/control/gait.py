@@ -74,11 +74,6 @@ STANCE_SETTLE_TIME = 0.05
 RISING_HALF = 0.5
 # m: a swing foot this far above its start that touches something on its way up has met a riser
 RISER_HEIGHT = 0.01
-# m: a foot past its swing's time is beyond the riser it met once within this of its target there
-# (the servos' lag)
-EDGE_LAG = 0.005
-# m: a foot climbing over a riser moves on once its target is within this of the height it clears
-CLIMB_TOLERANCE = 0.001
 # Footholds the front feet stood on, remembered per side for the middle and rear feet (a ring).
 FRONT_LEGS = (0, 5)
 FOOTHOLDS = 6
@@ -409,8 +404,8 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     # Ground found in the second part of a swing, or at or after its scheduled end: land there.
     touched = swinging & contact & (~now | (progress >= p.touchdown_phase))
     raises = p.max_swing_height > 0.0
-    if raises and measured is not None and touched.any():
-        touched &= ~_short_of_edges(parameters, s, touched, now, measured, ~swinging)
+    if raises and measured is not None and (touched & now).any():
+        touched &= ~_short_of_edges(parameters, s, touched & now, measured, ~swinging)
     if measured is not None:
         _copy_rows(feet, measured, touched)     # where it touched, not where its lagging target got to
     elif not follows_terrain:
@@ -422,11 +417,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     _store_flags(s.searching, searching)
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
     if searching.any():
-        climbing = np.zeros(6, dtype=np.bool_)
-        if raises and measured is not None:
-            climbing = _short_of_edge(parameters, s, searching, measured)
-            _climb_over_edges(parameters, s, climbing, contact, measured, dt)
-        _search(feet, swinging, searching & ~climbing, search_floor, p.search_speed * dt)
+        _search(feet, swinging, searching, search_floor, p.search_speed * dt)
         if raises:
             _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
         _store_flags(s.swinging, swinging)
@@ -515,14 +506,13 @@ def _plan_lifts(parameters, s, lifting, stance):
 
 
 @njit(cache=True)
-def _short_of_edges(parameters, s, touched, now, measured, stance):
+def _short_of_edges(parameters, s, touched, measured, stance):
     """The swing feet among `touched` that touched ground on their way down higher than both
     the stance feet's plane and their swing's start by more than RISER_HEIGHT (a step's top, met
-    from above) or short of a riser they met: they do not land yet. The first such touch in the
-    swing's time (`now`) is remembered as an edge, so that the foot keeps clear above it and lands
-    `edge_margin` beyond it, not on the corner it may have met; a later touch of the riser, lower
-    than the foot has been, raises the edge to where the foot is (elevator reflex). Past its
-    scheduled end a foot short of its edge is pressed against the riser's face, not on ground."""
+    from above) or short of a riser they met: they do not land yet. The first such touch is
+    remembered as an edge, so that the foot keeps clear above it and lands `edge_margin` beyond
+    it, not on the corner it may have met; a later touch short of it, higher than the edge, raises
+    the edge to where the foot is (a riser met on the way down: elevator reflex)."""
     p = parameters[0]
     short = np.zeros(6, dtype=np.bool_)
     plane_height, slope_x, slope_y = walk_plane(s.feet, stance, p.neutral_height)
@@ -532,50 +522,12 @@ def _short_of_edges(parameters, s, touched, now, measured, stance):
         x, y, z = measured[leg, 0], measured[leg, 1], measured[leg, 2]
         ground = max(plane_height + slope_x * x + slope_y * y, s.liftoff[leg, 2])
         if math.isnan(s.edge[leg, 0]):
-            if now[leg] and z - ground > RISER_HEIGHT:
+            if z - ground > RISER_HEIGHT:
                 s.edge[leg, 0], s.edge[leg, 1] = x, z
         elif x < s.edge[leg, 0] + p.edge_margin:
             s.edge[leg, 1] = max(s.edge[leg, 1], z)
-        short[leg] = x < s.edge[leg, 0] + p.edge_margin - (0.0 if now[leg] else EDGE_LAG)
+        short[leg] = x < s.edge[leg, 0] + p.edge_margin
     return short
-
-
-@njit(cache=True)
-def _short_of_edge(parameters, s, legs, measured):
-    """The feet among `legs` still short of the riser their swing met (within EDGE_LAG)."""
-    p = parameters[0]
-    short = np.zeros(6, dtype=np.bool_)
-    for leg in range(6):
-        short[leg] = legs[leg] and measured[leg, 0] < s.edge[leg, 0] + p.edge_margin - EDGE_LAG
-    return short
-
-
-@njit(cache=True)
-def _climb_over_edges(parameters, s, climbing, contact, measured, dt):
-    """A swing foot still short of the riser it met when its swing's time is up climbs over it
-    while the gait clock waits: up to `clearance` above the highest point where it touched the
-    riser (at most max_swing_height above its swing's start), then on to `edge_margin` beyond
-    it, at the search speed; the search for ground then lands it on the top. A foot touching the
-    riser raises the edge to where it is; one touching it where clearing it would take more than
-    max_swing_height forgets the edge: the search lands it where it is."""
-    p = parameters[0]
-    travel = p.search_speed * dt
-    for leg in range(6):
-        if not climbing[leg]:
-            continue
-        if contact[leg]:
-            s.edge[leg, 1] = max(s.edge[leg, 1], measured[leg, 2])
-        highest = s.liftoff[leg, 2] + p.max_swing_height
-        if contact[leg] and s.edge[leg, 1] + p.clearance > highest:
-            s.edge[leg, 0] = np.nan
-            climbing[leg] = False
-            continue
-        top = min(s.edge[leg, 1] + p.clearance, highest)
-        if s.feet[leg, 2] < top - CLIMB_TOLERANCE:
-            s.feet[leg, 0] = min(s.feet[leg, 0], s.edge[leg, 0])
-            s.feet[leg, 2] = min(top, s.feet[leg, 2] + travel)
-        else:
-            s.feet[leg, 0] = min(s.edge[leg, 0] + p.edge_margin, s.feet[leg, 0] + travel)
 
 
 @njit(cache=True)
