@@ -626,9 +626,9 @@ class FusionEstimator(Estimator):
         if rolling is not None:
             self._body_turn[:] = 0.0
             roll_feet(self.P, self.state.feet, self._rolled, ROLLING_FRACTION, ROLLING_STD)
-        if self.params.foot_sink_per_newton > 0 and len(reading.tracked):
+        if (self.params.foot_sink_per_newton > 0 or self.params.foot_shear_per_newton > 0) and len(reading.tracked):
             sink_feet(self.P, reading.tracked, self._loads, self._step_loads, rot.up_in_body(self.state.q),
-                      self.params.foot_sink_per_newton)
+                      self.params.foot_sink_per_newton, self.params.foot_shear_per_newton)
         self._step_loads = self._loads
         measured, restart = reading.measured, reading.new
         if len(reading.tracked):
@@ -817,17 +817,21 @@ def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: 
 # Compiled: it runs at every encoder sample.
 @njit(cache=True)
 def sink_feet(P: np.ndarray, legs: np.ndarray, loads: np.ndarray, previous_loads: np.ndarray, up: tuple,
-              sink_per_newton: float) -> None:
-    """A planted foot sinks into the ground as it takes load and rises as it sheds it: the tracked
-    `legs`' variances along `up` (body frame) grow by (sink_per_newton * load change)^2, in place
-    (a load that is not finite changes nothing)."""
+              sink_per_newton: float, shear_per_newton: float) -> None:
+    """A planted foot moves as its load changes: it sinks into the ground as it takes load and
+    rises as it sheds it, and slides along the ground as its contact's tangential spring loads
+    and slips. The tracked `legs`' variances grow by (sink_per_newton * load change)^2 along `up`
+    (body frame) and (shear_per_newton * load change)^2 across it, in place (a load that is not
+    finite changes nothing)."""
     for k in range(legs.shape[0]):
         leg = legs[k]
         change = loads[leg] - previous_loads[leg]
         if not math.isfinite(change):
             continue
-        variance = (sink_per_newton * change)**2
+        sink = (sink_per_newton * change)**2
+        shear = (shear_per_newton * change)**2
         b = FOOT0 + 3 * leg
         for i in range(3):
+            P[b + i, b + i] += shear
             for j in range(3):
-                P[b + i, b + j] += variance * up[i] * up[j]
+                P[b + i, b + j] += (sink - shear) * up[i] * up[j]

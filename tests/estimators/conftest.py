@@ -19,12 +19,12 @@ WALK_SEEDS = (0, 1, 2, 3)
 # The fusion filters' beliefs matched to the synthetic data, whose feet never slip, whose body
 # accelerates smoothly (no contact ringing) and whose accelerometer has no offset; with feet that
 # firm, the tilt is observed within a fraction of a second, so a gyro bias step shows in a
-# shorter window. Its foot centres stay put (no rolling spheres, no sinking), its gyro has no scale errors. The defaults are tuned on the DART runs instead (docs/estimators.md); a filter
+# shorter window. Its foot centres stay put (no rolling spheres, no sinking, no sliding), its gyro has no scale errors. The defaults are tuned on the DART runs instead (docs/estimators.md); a filter
 # is consistent only when its beliefs match its sensors, and one test runs the defaults here too.
 SYNTHETIC_BELIEFS = {"accel_bias_initial_std": 0.002, "foot_creep_accel_std": 0.0, "foot_slip_std": 5e-4,
                      "body_accel_std": 1.5, "bias_fault_window": 0.25, "bias_fault_std": 0.01,
                      "rolling_feet": False, "gyro_scale_std": 0.0, "accel_bias_estimation": "never",
-                     "foot_sink_per_newton": 0.0}
+                     "foot_sink_per_newton": 0.0, "foot_shear_per_newton": 0.0}
 
 
 @pytest.fixture(scope="session")

@@ -211,7 +211,7 @@ def test_rolling_feet_move_and_widen_only_the_rolled_feet():
     np.testing.assert_allclose(P_after, P + np.diag(grown), rtol=1e-12, atol=1e-15)
 
 
-def test_sinking_feet_widen_only_the_tracked_feet_along_up():
+def test_loaded_feet_widen_only_the_tracked_feet_along_up_and_across_it():
     rng = np.random.default_rng(8)
     P = random_covariance(rng, ERROR_DIM, 0.1)
     up = rng.normal(size=3)
@@ -219,12 +219,20 @@ def test_sinking_feet_widen_only_the_tracked_feet_along_up():
     loads, previous = rng.uniform(0.0, 10.0, 6), rng.uniform(0.0, 10.0, 6)
     load_change = loads - previous
     P_after = P.copy()
-    sink_feet(P_after, np.array([0, 3, 5, 1]), loads, np.where(np.arange(6) == 1, np.nan, previous), tuple(up), 1e-4)
+    sink_feet(P_after, np.array([0, 3, 5, 1]), loads, np.where(np.arange(6) == 1, np.nan, previous), tuple(up),
+              1e-4, 4e-4)
     expected = P.copy()
+    across = np.eye(3) - np.outer(up, up)
     for leg in (0, 3, 5):
         block = slice(FOOT0 + 3 * leg, FOOT0 + 3 * leg + 3)
-        expected[block, block] += (1e-4 * load_change[leg])**2 * np.outer(up, up)
+        expected[block, block] += load_change[leg]**2 * (1e-8 * np.outer(up, up) + 16e-8 * across)
     np.testing.assert_allclose(P_after, expected, rtol=1e-12, atol=1e-15)
+    # Along up only the sinking adds; across it only the sliding.
+    growth = (P_after - P)[FOOT0:FOOT0 + 3, FOOT0:FOOT0 + 3]
+    side = np.cross(up, [1.0, 0.0, 0.0])
+    side /= np.linalg.norm(side)
+    np.testing.assert_allclose([up @ growth @ up, side @ growth @ side],
+                               [(1e-4 * load_change[0])**2, (4e-4 * load_change[0])**2], rtol=1e-9)
 
 
 def test_drift_statistic_equals_the_numpy_products():
