@@ -458,8 +458,10 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         if raises:
             _lift_over(parameters, s, blocked, measured)
     _move_swing(feet, liftoff, progress, in_swing, touchdown, s.lift)
-    if raises:
-        _keep_over_edges(parameters, s, in_swing)
+    if raises and measured is None:
+        _keep_over_edges(parameters, s, in_swing, feet)
+    elif raises:
+        _keep_over_edges(parameters, s, in_swing, measured)
     for leg in range(6):
         if swinging[leg]:
             search_floor[leg] = touchdown[leg, 2] - p.search_depth
@@ -507,10 +509,10 @@ def _plan_lifts(parameters, s, lifting, stance):
 def _short_of_edges(parameters, s, touched, measured, stance):
     """The swing feet among `touched` that touched ground on their way down higher than both
     the stance feet's plane and their swing's start by more than RISER_HEIGHT (a step's top, met
-    from above) or short of a
-    riser they met: they do not land yet. The first such touch is remembered as an edge, so that
-    the foot keeps clear above it and lands `edge_margin` beyond it, not on the corner it may
-    have met."""
+    from above) or short of a riser they met: they do not land yet. The first such touch is
+    remembered as an edge, so that the foot keeps clear above it and lands `edge_margin` beyond
+    it, not on the corner it may have met; a later touch short of it, higher than the edge, raises
+    the edge to where the foot is (a riser met on the way down: elevator reflex)."""
     p = parameters[0]
     short = np.zeros(6, dtype=np.bool_)
     plane_height, slope_x, slope_y = walk_plane(s.feet, stance, p.neutral_height)
@@ -519,8 +521,11 @@ def _short_of_edges(parameters, s, touched, measured, stance):
             continue
         x, y, z = measured[leg, 0], measured[leg, 1], measured[leg, 2]
         ground = max(plane_height + slope_x * x + slope_y * y, s.liftoff[leg, 2])
-        if math.isnan(s.edge[leg, 0]) and z - ground > RISER_HEIGHT:
-            s.edge[leg, 0], s.edge[leg, 1] = x, z
+        if math.isnan(s.edge[leg, 0]):
+            if z - ground > RISER_HEIGHT:
+                s.edge[leg, 0], s.edge[leg, 1] = x, z
+        elif x < s.edge[leg, 0] + p.edge_margin:
+            s.edge[leg, 1] = max(s.edge[leg, 1], z)
         short[leg] = x < s.edge[leg, 0] + p.edge_margin
     return short
 
@@ -685,13 +690,18 @@ def _beyond_edges(parameters, s, touchdown):
 
 
 @njit(cache=True)
-def _keep_over_edges(parameters, s, in_swing):
+def _keep_over_edges(parameters, s, in_swing, measured):
     """A swing foot short of the riser it met stays `clearance` above the highest point where it
-    touched it, so that it does not come down on the corner."""
+    touched it, so that it does not come down on the corner; while the foot itself (`measured`)
+    is still lower than that by more than RISER_HEIGHT it holds its place over the ground short of
+    the riser instead of pushing into its face."""
     p = parameters[0]
     for leg in range(6):
         if in_swing[leg] and not math.isnan(s.edge[leg, 0]) and s.feet[leg, 0] < s.edge[leg, 0] + p.edge_margin:
-            s.feet[leg, 2] = max(s.feet[leg, 2], s.edge[leg, 1] + p.clearance)
+            top = s.edge[leg, 1] + p.clearance
+            s.feet[leg, 2] = max(s.feet[leg, 2], top)
+            if measured[leg, 2] < top - RISER_HEIGHT:
+                s.feet[leg, 0] = min(s.feet[leg, 0], s.edge[leg, 0])
 
 
 @njit(cache=True)

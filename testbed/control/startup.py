@@ -52,6 +52,11 @@ class CalibrationPoses:
         return moves
 
     @property
+    def poses(self) -> list[tuple[float, float]]:
+        """(roll, pitch) of each pose, rad: the body's tilt is largest there."""
+        return [(self.tilt * roll, self.tilt * pitch) for roll, pitch in POSES]
+
+    @property
     def end(self) -> float:
         """s from the start until the poses are over and the robot stands level again."""
         if self.tilt == 0.0:

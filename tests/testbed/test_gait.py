@@ -314,3 +314,35 @@ def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_o
     assert footholds_slope(footholds, np.array([3, FOOTHOLDS])) == 0.0          # too few yet
     footholds[0, -1, 2] += 0.03                                                # a 3 cm step among them
     assert footholds_slope(footholds, count) == 0.0
+
+
+def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_and_the_edge_rises_with_it():
+    """Foot 0 met a riser at x = 0.20 m (gait frame), 3 cm above its lift-off, on its way down.
+    While the foot itself is lower than the edge plus the clearance by more than RISER_HEIGHT, its
+    target rises there but stays short of the riser (it does not push into the face); once the
+    foot is up, the target goes on. A later touch short of the riser, higher than the edge,
+    raises the edge."""
+    from testbed.control.gait import RISER_HEIGHT, _keep_over_edges, _short_of_edges
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPPING)
+    parameters, record = gait.parameters, gait.state_record
+    s = record[0]
+    ground = NEUTRAL[0, 2]
+    s["liftoff"][0] = (0.15, NEUTRAL[0, 1], ground)
+    s["edge"][0] = (0.20, ground + 0.03)
+    in_swing = np.array([True, False, False, False, False, False])
+    top = ground + 0.03 + STEPPING.clearance
+    measured = gait.state.feet.copy()
+    for foot_z, held in ((ground + 0.03, True), (top - RISER_HEIGHT + 1e-4, False)):
+        s["feet"][0] = (0.215, NEUTRAL[0, 1], ground + 0.01)       # the ellipse's target, inside the step
+        measured[0] = (0.20, NEUTRAL[0, 1], foot_z)
+        _keep_over_edges(parameters, s, in_swing, measured)
+        assert s["feet"][0, 2] == pytest.approx(top)
+        assert s["feet"][0, 0] == pytest.approx(0.20 if held else 0.215)
+    touched = in_swing.copy()
+    stance = ~in_swing
+    measured[0] = (0.20, NEUTRAL[0, 1], ground + 0.04)
+    short = _short_of_edges(parameters, s, touched, measured, stance)
+    assert short[0] and s["edge"][0, 1] == pytest.approx(ground + 0.04) and s["edge"][0, 0] == pytest.approx(0.20)
+    measured[0] = (0.20, NEUTRAL[0, 1], ground + 0.035)               # lower: the edge stays
+    _short_of_edges(parameters, s, touched, measured, stance)
+    assert s["edge"][0, 1] == pytest.approx(ground + 0.04)

@@ -413,3 +413,28 @@ def test_the_body_crouches_so_that_the_legs_reach_down_a_20_degree_ramp(angle):
     assert not crouched["fell"] and crouched["ik_limited_ticks"] == 0 and crouched["tilt_max_deg"] < 1.5
     assert upright["ik_limited_ticks"] > 300
     assert crouched["height_error_rms_m"] < 0.008
+
+
+@pytest.mark.parametrize("angle", [20.0, -20.0])
+def test_the_body_stands_low_enough_through_the_calibration_poses_on_a_20_degree_slope(angle):
+    """Standing on a 20 degree slope, the 12 degree calibration poses put the downhill feet past the
+    legs' reach unless the body stands lower through them; it lowers with its start-up rise, by
+    the same amount through every pose."""
+    cfg = config.load(None, {"run": {**WALK["run"], "terrain": "slope", "duration": 2.4, "seed": 3},
+                             "terrain": {"slope_deg": angle}})
+    parts = build_parts(cfg)
+    pilot, crouches = parts.controller, []
+    tick = pilot.tick
+
+    def recorded(t, samples, estimate):
+        joints = tick(t, samples, estimate)
+        crouches.append((t, pilot.crouch))
+        return joints
+
+    pilot.tick = recorded
+    crouched = run(cfg, parts=parts).metrics
+    upright = run(cfg.replace(posture={"max_crouch": 0.0})).metrics
+    times, depth = np.array(crouches).T
+    poses = np.array([pilot.startup.rise(t) == 1.0 for t in times]) & (times < pilot.startup_time)
+    assert crouched["ik_limited_ticks"] == 0 and upright["ik_limited_ticks"] > 300
+    assert 0.0 < depth[poses].min() == depth[poses].max() <= cfg.posture.max_crouch
