@@ -427,12 +427,13 @@ class FusionEstimator(Estimator):
     # -- samples -------------------------------------------------------------------------------
 
     def update(self, sample: Sample) -> Estimate | None:
-        # The 1 kHz path in fewer Python steps: imu_sample tests the readings for finite values itself.
+        # The 1 kHz path in fewer Python steps: imu_sample tests the specific force for finite values
+        # itself; a gyro reading that is not finite takes the general path, which counts it as missing.
         if type(sample) is ImuSample and self.state is not None and self._body_from_imu is None:
             gyro, accel = sample.gyro, sample.accel
             # (dtypes compared by value: arrays that numba boxed carry their own float64 dtype object)
             if type(gyro) is np.ndarray and type(accel) is np.ndarray and gyro.shape == accel.shape == (3,) \
-                    and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64:
+                    and gyro.dtype == FLOAT64 and accel.dtype == FLOAT64 and math.isfinite(gyro[0] + gyro[1] + gyro[2]):
                 return self._update_imu(sample.t, gyro, accel)
         if type(sample) is AccelSample:
             if self.array is not None:

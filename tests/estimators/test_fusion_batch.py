@@ -125,3 +125,25 @@ def test_a_rough_ground_walk_gives_the_per_sample_estimates(rough_walk):
     config, samples = rough_walk
     assert_batches_match("ekf", config, samples, (777,))
     assert_batches_match("ekf", config, with_faults(samples, start=0.5), (4096,))
+
+
+@pytest.mark.parametrize("name", ["ekf", "ukf"])
+def test_a_missing_gyro_reading_widens_the_attitude_whether_array_or_list(runs, config, name):
+    """A NaN gyro reading is missing in whatever container it comes: the filter integrates the
+    unknown body rate into the attitude's variance, the same for a float64 array (the live run's
+    and the replay's) as for a list."""
+    samples = first_seconds(runs.samples(1), 3.0)
+    start = 1.0
+
+    def without_gyro(as_array: bool) -> list:
+        reading = np.array([np.nan, 0.0, 0.0]) if as_array else [np.nan, 0.0, 0.0]
+        return [dataclasses.replace(sample, gyro=reading)
+                if isinstance(sample, ImuSample) and start <= sample.t < start + 0.5 else sample
+                for sample in samples]
+
+    clean = one_at_a_time(make_estimator(name, config), samples)
+    as_array, as_list = (one_at_a_time(make_estimator(name, config), without_gyro(flag)) for flag in (True, False))
+    assert_same_estimates(as_array, as_list)
+    yaw_variance = [next(e for e in estimates if e.t >= start + 0.5).attitude_cov[2, 2]
+                    for estimates in (clean, as_array)]
+    assert yaw_variance[1] > 2 * yaw_variance[0]
