@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from itertools import islice
 from typing import ClassVar
@@ -120,6 +120,18 @@ def imu_rotation(config) -> np.ndarray:
 def imu_position(config) -> np.ndarray:
     """m, body frame: the IMU's accelerometer point."""
     return np.array(config.sensors.imu.position, dtype=float)
+
+
+def stacked_readings(samples: Sequence[ImuSample]) -> tuple[np.ndarray, np.ndarray] | None:
+    """(gyro (N, 3), accel (N, 3)) of the IMU samples' readings as they are (sensor frame, not
+    checked for finite values), or None when a reading is not a 3-vector: the input of an
+    estimator's compiled batch loop."""
+    try:
+        gyro, accel = (np.array([getattr(sample, name) for sample in samples], dtype=float)
+                       for name in ("gyro", "accel"))
+    except (ValueError, TypeError):
+        return None
+    return (gyro, accel) if gyro.shape == accel.shape == (len(samples), 3) else None
 
 
 def samples_for(estimator: Estimator, samples: Iterable[Sample]) -> Iterable[Sample]:

@@ -21,7 +21,7 @@ import numpy as np
 from ahrs.filters import Madgwick, Mahony
 from vqf import VQF
 
-from estimators.base import Estimate, Estimator, imu_rotation
+from estimators.base import Estimate, Estimator, imu_rotation, stacked_readings
 from estimators.config import MadgwickConfig, MahonyConfig, VqfConfig
 from sensors.samples import ImuSample, Sample
 from testbed.model import spatial as rot
@@ -165,13 +165,10 @@ class VqfEstimator(Estimator):
         """(times, gyro (N, 3), accel (N, 3)) in the body frame of the samples `_update_imu` would
         use (a finite gyro; an invalid accelerometer reading as NO_ACCEL), or None when a reading
         is not a 3-vector."""
-        try:
-            gyro, accel = (np.array([getattr(s, name) for s in samples], dtype=float).reshape(-1, 3)
-                           for name in ("gyro", "accel"))
-        except ValueError:
+        readings = stacked_readings(samples)
+        if readings is None:
             return None
-        if len(gyro) != len(samples) or len(accel) != len(samples):
-            return None
+        gyro, accel = readings
         if self._body_from_imu is not None:
             gyro, accel = (np.array([self._body_from_imu @ row for row in rows]).reshape(-1, 3) for rows in (gyro, accel))
         # finite exactly when `Estimator._to_body` accepts the reading (the same sum)

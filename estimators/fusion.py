@@ -61,7 +61,7 @@ from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
 from estimators.accel_array import AccelArrayFit, RateTracker
-from estimators.base import Estimate, Estimator
+from estimators.base import Estimate, Estimator, stacked_readings
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.gating import chi2_quantile
 from estimators.leg_odometry import StanceTracker
@@ -481,17 +481,11 @@ class FusionEstimator(Estimator):
         """The IMU samples' IMU_READINGS for `imu_samples`, or None when the per-sample path must
         take them all: an accelerometer array or a mounting rotation, or readings that are not
         3-vectors."""
-        if self.state is None or self.array is not None or self._body_from_imu is not None:
+        stacked = stacked_readings(samples)
+        if stacked is None or self.state is None or self.array is not None or self._body_from_imu is not None:
             return None
         readings = np.empty(len(samples), dtype=IMU_READINGS)
-        try:
-            for name in ("gyro", "accel"):
-                values = np.array([getattr(sample, name) for sample in samples], dtype=float)
-                if values.shape != (len(samples), 3):
-                    return None
-                readings[name] = values
-        except (ValueError, TypeError):
-            return None
+        readings["gyro"], readings["accel"] = stacked
         readings["t"] = [sample.t for sample in samples]
         return readings
 
