@@ -16,7 +16,7 @@ import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cache, cached_property
 from pathlib import Path
 from typing import Any
 
@@ -143,5 +143,13 @@ def import_plugin_module(module_name: str, kind: str, spec: str):
 
 
 def _distribution_of(top_level: str) -> str | None:
-    names = importlib.metadata.packages_distributions().get(top_level)
+    names = _distributions_by_package(tuple(sys.path)).get(top_level)
     return names[0] if names else None
+
+
+@cache
+def _distributions_by_package(search_path: tuple[str, ...]) -> dict[str, list[str]]:
+    """`importlib.metadata.packages_distributions()`, once per `search_path` (sys.path, the cache's
+    key): it reads the file list of every installed distribution (0.2 s here), and a run asks for
+    each of its parts."""
+    return importlib.metadata.packages_distributions()
