@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PoseTrajectory3D
 
-from estimators.base import Estimate
+from estimators.base import ROW_FIELDS, Estimate, EstimateRows, Estimates
 from estimators.gating import chi2_quantile
 from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
@@ -77,26 +77,82 @@ class TerrainTruth:
 
 
 def estimate_arrays(estimates: Sequence[Estimate]) -> EstimateArrays:
-    """The estimates' fields as columns."""
-    def values(name):
-        return list(map(attrgetter(name), estimates))
+    """The estimates' fields as columns (those of `Estimates` part by part: `part_column`)."""
+    parts = estimate_parts(estimates)
 
     def floats(name):
-        return np.array(values(name), dtype=float)
+        return np.concatenate([part_column(part, name)[0] for part in parts]) if parts else np.array([], dtype=float)
 
     def column(name):
         """Floats, NaN where an estimate has None; None when all have None."""
-        column_values = values(name)
-        return None if column_values.count(None) == len(column_values) else np.array(column_values, dtype=float)
+        per_part = [part_column(part, name) for part in parts]
+        return None if all(all_none for _, all_none in per_part) else np.concatenate([c for c, _ in per_part])
 
-    attitude_cov = stacked(values("attitude_cov"))
+    def stacked_column(name):
+        """None unless every estimate has an array."""
+        per_part = [part_column(part, name)[0] for part in parts]
+        return None if not per_part or any(c is None for c in per_part) else np.concatenate(per_part)
+
+    attitude_cov = stacked_column("attitude_cov")
     return EstimateArrays(
         t=floats("t"), roll=floats("roll"), pitch=floats("pitch"),
         tilt_cov=None if attitude_cov is None else attitude_cov[:, :2, :2],
         terrain_roll=column("terrain_roll"), terrain_pitch=column("terrain_pitch"),
         body_height=column("body_height"), yaw=floats("yaw"),
-        attitude_cov=attitude_cov, position=stacked(values("position")), velocity=stacked(values("velocity")),
-        position_cov=stacked(values("position_cov")), velocity_cov=stacked(values("velocity_cov")))
+        attitude_cov=attitude_cov, position=stacked_column("position"), velocity=stacked_column("velocity"),
+        position_cov=stacked_column("position_cov"), velocity_cov=stacked_column("velocity_cov"))
+
+
+SCALAR_FIELDS = frozenset({"t", "roll", "pitch", "yaw", "terrain_roll", "terrain_pitch", "body_height"})
+
+
+@dataclass(frozen=True)
+class RowsRun:
+    """Consecutive `EstimateRows` of `Estimates`, whose columns are taken together."""
+    parts: list[EstimateRows]
+
+
+def estimate_parts(estimates: Sequence[Estimate]) -> list[Sequence[Estimate] | RowsRun]:
+    """The estimates in non-empty parts: lists of Estimate objects and runs of EstimateRows."""
+    if not isinstance(estimates, Estimates):
+        return [estimates] if len(estimates) else []
+    parts: list[Sequence[Estimate] | RowsRun] = []
+    for part in estimates.parts:
+        if not isinstance(part, EstimateRows):
+            parts.append(part)
+        elif parts and isinstance(parts[-1], RowsRun):
+            parts[-1].parts.append(part)
+        else:
+            parts.append(RowsRun([part]))
+    return parts
+
+
+def part_column(estimates: Sequence[Estimate] | RowsRun, name: str) -> tuple[np.ndarray | None, bool]:
+    """(column, whether every estimate has None) of one field of a part (`estimate_parts`): a
+    scalar field's floats, NaN where an estimate has None; an array field's arrays stacked, None
+    unless every estimate has one."""
+    if isinstance(estimates, RowsRun):
+        return rows_column(estimates.parts, name)
+    values = list(map(attrgetter(name), estimates))
+    if name in SCALAR_FIELDS:
+        return np.array(values, dtype=float), values.count(None) == len(values)
+    column = stacked(values)
+    return column, column is None and all(value is None for value in values)
+
+
+def rows_column(parts: list[EstimateRows], name: str) -> tuple[np.ndarray | None, bool]:
+    """`part_column` of consecutive rows: the row fields' columns, the shared values repeated."""
+    if name == "t":
+        return np.concatenate([part.t for part in parts]), False
+    if name in ROW_FIELDS:
+        return np.concatenate([part.rows[name] for part in parts]), False
+    values = [part.shared(name) for part in parts]
+    counts = [len(part) for part in parts]
+    if name in SCALAR_FIELDS:
+        return np.repeat(np.array(values, dtype=float), counts), values.count(None) == len(values)
+    if any(value is None for value in values):
+        return None, all(value is None for value in values)
+    return np.repeat(np.array(values, dtype=float), counts, axis=0), False
 
 
 def stacked(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
