@@ -127,34 +127,32 @@ ROW_FIELDS = frozenset(ESTIMATE_ROWS.names)
 STEP_FIELDS = ("attitude_cov", "gyro_bias", "gyro_bias_cov", "terrain_roll", "terrain_pitch", "body_height",
                "terrain_cov")
 POSE_COVARIANCE_FIELDS = ("position_cov", "velocity_cov")
+SHARED_FIELDS = STEP_FIELDS + POSE_COVARIANCE_FIELDS
 
 
 @dataclass
 class EstimateRows:
-    """Estimates held as columns: at times `t`, with the attitudes and poses of the ESTIMATE_ROWS
-    `rows`, and the same values of the other fields (`step`: STEP_FIELDS; `pose_covariances`:
-    POSE_COVARIANCE_FIELDS)."""
-    t: np.ndarray                # (n,) s
-    rows: np.ndarray             # (n,) ESTIMATE_ROWS
+    """Estimates held as columns: at the times `t[first:stop]`, with the attitudes and poses of
+    the ESTIMATE_ROWS `rows[first:stop]` (`t` and `rows` may be a batch's, which other
+    EstimateRows share), and the same values of the other fields (`step`: STEP_FIELDS;
+    `pose_covariances`: POSE_COVARIANCE_FIELDS)."""
+    t: np.ndarray                # (N,) s
+    rows: np.ndarray             # (N,) ESTIMATE_ROWS
+    first: int
+    stop: int
     step: tuple
     pose_covariances: tuple
 
     def __len__(self) -> int:
-        return len(self.t)
+        return self.stop - self.first
 
     def estimates(self) -> list[Estimate]:
         """The Estimate objects; their arrays are views of `rows` and the shared arrays."""
-        rows, step, covariances = self.rows, self.step, self.pose_covariances
+        rows, step, covariances = self.rows[self.first:self.stop], self.step, self.pose_covariances
         return [Estimate(t, quaternion, roll, pitch, yaw, *step, position, velocity, *covariances)
                 for t, quaternion, roll, pitch, yaw, position, velocity
-                in zip(self.t.tolist(), rows["quaternion"], rows["roll"].tolist(), rows["pitch"].tolist(),
-                       rows["yaw"].tolist(), rows["position"], rows["velocity"])]
-
-    def shared(self, name: str):
-        """The value of a field that is not a row field."""
-        if name in STEP_FIELDS:
-            return self.step[STEP_FIELDS.index(name)]
-        return self.pose_covariances[POSE_COVARIANCE_FIELDS.index(name)]
+                in zip(self.t[self.first:self.stop].tolist(), rows["quaternion"], rows["roll"].tolist(),
+                       rows["pitch"].tolist(), rows["yaw"].tolist(), rows["position"], rows["velocity"])]
 
 
 class Estimates(Sequence[Estimate]):
@@ -168,20 +166,21 @@ class Estimates(Sequence[Estimate]):
         self._objects: list[Estimate] | None = None
 
     def add(self, estimates: list[Estimate] | EstimateRows | Estimates) -> None:
-        """Append estimates (a list, rows, or the parts of other Estimates)."""
-        if isinstance(estimates, Estimates):
-            for part in estimates.parts:
-                self.add(part)
+        """Append estimates (a list, rows, or those of other Estimates)."""
+        count = len(estimates)
+        if not count:
             return
-        if not len(estimates):
-            return
-        if isinstance(estimates, list) and self.parts and isinstance(self.parts[-1], list):
-            self.parts[-1].extend(estimates)
-        else:
-            self.parts.append(list(estimates) if isinstance(estimates, list) else estimates)
-        self._length += len(estimates)
         if self._objects is not None:
-            self._objects += estimates if isinstance(estimates, list) else estimates.estimates()
+            self._objects += estimates.estimates() if isinstance(estimates, EstimateRows) else list(estimates)
+        self._length += count
+        if isinstance(estimates, Estimates):
+            self.parts += [list(part) if isinstance(part, list) else part for part in estimates.parts]
+        elif isinstance(estimates, EstimateRows):
+            self.parts.append(estimates)
+        elif self.parts and isinstance(self.parts[-1], list):
+            self.parts[-1] += estimates
+        else:
+            self.parts.append(list(estimates))
 
     def append(self, estimate: Estimate) -> None:
         self.add([estimate])

@@ -464,7 +464,7 @@ class FusionEstimator(Estimator):
         if readings is None:
             estimates.add(super().update_batch(rest))
             return estimates
-        batch = ImuBatch(rest, positions, imu, readings, np.empty(len(imu), dtype=IMU_OUTPUTS))
+        batch = ImuBatch(rest, positions, imu, readings, readings["t"].copy(), np.empty(len(imu), dtype=IMU_OUTPUTS))
         # The IMU samples with no sample but feet between them share a run.
         others_before = np.cumsum([type(sample) not in (ImuSample, FootSample) for sample in rest])
         done = 0        # samples of `rest` handled
@@ -533,12 +533,11 @@ class FusionEstimator(Estimator):
     def _attitude_estimates(self, batch: ImuBatch, first: int, stop: int) -> EstimateRows:
         """`_attitude_estimate` of the batch's IMU samples first to stop - 1, as rows of their
         outputs (the step's outputs at the first, when they are not computed yet)."""
-        rows, readings = batch.out[first:stop], batch.readings[first:stop]
         if self._output is None:
-            row = rows[0]
-            self._output = self._step_output(float(readings[0]["t"]), float(row["roll"]), float(row["pitch"]),
-                                             float(row["yaw"]), readings[0]["gyro"])
-        return EstimateRows(readings["t"], rows, self._output, self._pose_covariances)
+            row, reading = batch.out[first], batch.readings[first]
+            self._output = self._step_output(float(reading["t"]), float(row["roll"]), float(row["pitch"]),
+                                             float(row["yaw"]), reading["gyro"])
+        return EstimateRows(batch.times, batch.out, first, stop, self._output, self._pose_covariances)
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         """As Estimator's, and a reading that is not finite counts as missing too."""
@@ -905,6 +904,7 @@ class ImuBatch(NamedTuple):
     positions: list[int]       # where the IMU samples are in `samples`
     imu: list[ImuSample]
     readings: np.ndarray       # IMU_READINGS of `imu`
+    times: np.ndarray          # s, their times
     out: np.ndarray            # IMU_OUTPUTS of `imu`, as `imu_samples` writes them
 
 
