@@ -464,7 +464,7 @@ class FusionEstimator(Estimator):
         if readings is None:
             estimates.add(super().update_batch(rest))
             return estimates
-        batch = ImuBatch(rest, positions, imu, readings, readings["t"].copy(), np.empty(len(imu), dtype=IMU_OUTPUTS))
+        batch = ImuBatch(rest, positions, readings, readings["t"].copy(), np.empty(len(imu), dtype=IMU_OUTPUTS))
         # The IMU samples with no sample but feet between them share a run.
         others_before = np.cumsum([type(sample) not in (ImuSample, FootSample) for sample in rest])
         done = 0        # samples of `rest` handled
@@ -899,13 +899,12 @@ LEFT = -1      # `imu_samples`' status of a sample it left untouched
 
 
 class ImuBatch(NamedTuple):
-    """`FusionEstimator.update_batch`'s samples and the IMU samples among them, in order."""
+    """`FusionEstimator.batch_estimates`' samples and the IMU samples among them, in order."""
     samples: list[Sample]
     positions: list[int]       # where the IMU samples are in `samples`
-    imu: list[ImuSample]
-    readings: np.ndarray       # IMU_READINGS of `imu`
+    readings: np.ndarray       # IMU_READINGS of the IMU samples
     times: np.ndarray          # s, their times
-    out: np.ndarray            # IMU_OUTPUTS of `imu`, as `imu_samples` writes them
+    out: np.ndarray            # IMU_OUTPUTS of the IMU samples, as `imu_samples` writes them (the estimates' rows)
 
 
 # Compiled: one call per run of IMU samples between two other samples (offline replay).
