@@ -10,7 +10,7 @@ config therefore produces bit-identical estimates again.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,7 +19,7 @@ from datasets.background import exchanged_in_background
 from datasets.reader import Recording, SampleBlock, read_recording, replay_inputs
 from datasets.recorder import DatasetWriter
 from datasets.scoring import ScoringTruth, score_as_they_come
-from estimators.base import Estimate, estimate_batches
+from estimators.base import Estimate, Estimates, estimate_batches
 from estimators.scoring import EstimateArrays, estimate_arrays
 from estimators.registry import make_estimator, resolve_estimator
 from sensors.samples import Sample
@@ -34,7 +34,7 @@ SAMPLES_PER_BLOCK = 4096
 @dataclass(frozen=True)
 class ReplayResult:
     metrics: dict
-    estimates: list[Estimate]
+    estimates: Sequence[Estimate]    # `Estimates`: each Estimate object is built when first read
     samples: int
     truncation_note: str | None      # set when the file was truncated and only its readable part replayed
 
@@ -57,11 +57,11 @@ def replay(path: str | Path, estimator_name: str, out: str | Path | None = None,
                                                              config) as (items, to_scorer):
         estimator = make_estimator(estimator_name, config)      # (while the file is read)
         inputs = ReplayInputs(items)
-        estimates: list[Estimate] = []
+        estimates = Estimates()
         for batch in estimate_batches(estimator, feed(counted.samples(inputs.blocks()), sensor_span_s(recording))):
-            if batch:
-                estimates += batch
-                to_scorer.send(estimate_arrays(batch))     # (while the batch's objects are fresh in the caches)
+            if len(batch):
+                estimates.add(batch)
+                to_scorer.send(estimate_arrays(batch))     # (while the batch's columns are fresh in the caches)
         sim_time = inputs.sim_time()
         to_scorer.close()
         metrics = inputs.metrics()
@@ -149,7 +149,8 @@ def sample_topics(estimator_spec: str) -> frozenset[str]:
     return EVERY_SENSOR_TOPIC if types is None else frozenset(codec.sample_topic(kind).name for kind in types)
 
 
-def write_replayed(recording: Recording, out: Path, config: Config, estimates: list[Estimate], metrics: dict) -> None:
+def write_replayed(recording: Recording, out: Path, config: Config, estimates: Sequence[Estimate],
+                   metrics: dict) -> None:
     """The recording with its estimates replaced by `estimates`, in log-time order."""
     messages = [(log_ns, sequence, topic, data) for topic, entries in recording.messages.items()
                 if topic != schemas.ESTIMATE.name for log_ns, sequence, data in entries]

@@ -89,9 +89,15 @@ class Estimator(abc.ABC):
 
     def update_batch(self, samples: Iterable[Sample]) -> list[Estimate]:
         """The estimates of time-ordered `samples`, exactly as `update` gives them one at a time.
-        Offline replay calls this; an estimator whose library has a compiled batch loop overrides
-        it with that loop."""
+        An estimator whose library has a compiled batch loop overrides it with that loop."""
         return [estimate for estimate in map(self.update, samples) if estimate is not None]
+
+    def batch_estimates(self, samples: Sequence[Sample]) -> Estimates:
+        """`update_batch`'s estimates as `Estimates` (offline replay calls this); a filter whose
+        compiled loop writes its estimates as rows overrides it to keep them as rows."""
+        estimates = Estimates()
+        estimates.add(self.update_batch(samples))
+        return estimates
 
     def _to_body(self, vector: np.ndarray) -> np.ndarray | None:
         """The IMU vector in the body frame, or None when it is not a finite 3-vector."""
@@ -110,6 +116,98 @@ class Estimator(abc.ABC):
 
     def _update_feet(self, sample: FootSample) -> None:
         """Attitude-only estimators ignore the legs."""
+
+
+# The per-sample fields of a run of estimates whose other fields are the same (`EstimateRows`):
+# attitude (quaternion x, y, z, w; rad) and pose (body origin, start frame: m, m/s).
+ESTIMATE_ROWS = np.dtype([("quaternion", "f8", 4), ("roll", "f8"), ("pitch", "f8"), ("yaw", "f8"),
+                          ("position", "f8", 3), ("velocity", "f8", 3)])
+ROW_FIELDS = frozenset(ESTIMATE_ROWS.names)
+# The fields an `EstimateRows` shares among its estimates, in Estimate's order.
+STEP_FIELDS = ("attitude_cov", "gyro_bias", "gyro_bias_cov", "terrain_roll", "terrain_pitch", "body_height",
+               "terrain_cov")
+POSE_COVARIANCE_FIELDS = ("position_cov", "velocity_cov")
+SHARED_FIELDS = STEP_FIELDS + POSE_COVARIANCE_FIELDS
+
+
+@dataclass
+class EstimateRows:
+    """Estimates held as columns: at the times `t[first:stop]`, with the attitudes and poses of
+    the ESTIMATE_ROWS `rows[first:stop]` (`t` and `rows` may be a batch's, which other
+    EstimateRows share), and the same values of the other fields (`step`: STEP_FIELDS;
+    `pose_covariances`: POSE_COVARIANCE_FIELDS)."""
+    t: np.ndarray                # (N,) s
+    rows: np.ndarray             # (N,) ESTIMATE_ROWS
+    first: int
+    stop: int
+    step: tuple
+    pose_covariances: tuple
+
+    def __len__(self) -> int:
+        return self.stop - self.first
+
+    def estimates(self) -> list[Estimate]:
+        """The Estimate objects; their arrays are views of `rows` and the shared arrays."""
+        rows, step, covariances = self.rows[self.first:self.stop], self.step, self.pose_covariances
+        return [Estimate(t, quaternion, roll, pitch, yaw, *step, position, velocity, *covariances)
+                for t, quaternion, roll, pitch, yaw, position, velocity
+                in zip(self.t[self.first:self.stop].tolist(), rows["quaternion"], rows["roll"].tolist(),
+                       rows["pitch"].tolist(), rows["yaw"].tolist(), rows["position"], rows["velocity"])]
+
+
+class Estimates(Sequence[Estimate]):
+    """Estimates in time order, held in parts: lists of Estimate objects and `EstimateRows`, whose
+    objects are built when an estimate is first read (and then kept), so that columns can be taken
+    from the rows without them (`estimators.scoring.estimate_arrays`)."""
+
+    def __init__(self) -> None:
+        self.parts: list[list[Estimate] | EstimateRows] = []
+        self._length = 0
+        self._objects: list[Estimate] | None = None
+
+    def add(self, estimates: list[Estimate] | EstimateRows | Estimates) -> None:
+        """Append estimates (a list, rows, or those of other Estimates)."""
+        count = len(estimates)
+        if not count:
+            return
+        if self._objects is not None:
+            self._objects += estimates.estimates() if isinstance(estimates, EstimateRows) else list(estimates)
+        self._length += count
+        if isinstance(estimates, Estimates):
+            self.parts += [list(part) if isinstance(part, list) else part for part in estimates.parts]
+        elif isinstance(estimates, EstimateRows):
+            self.parts.append(estimates)
+        elif self.parts and isinstance(self.parts[-1], list):
+            self.parts[-1] += estimates
+        else:
+            self.parts.append(list(estimates))
+
+    def append(self, estimate: Estimate) -> None:
+        self.add([estimate])
+
+    def objects(self) -> list[Estimate]:
+        """The estimates as Estimate objects, built once."""
+        if self._objects is None:
+            self._objects = [estimate for part in self.parts
+                             for estimate in (part if isinstance(part, list) else part.estimates())]
+        return self._objects
+
+    def __len__(self) -> int:
+        return self._length
+
+    def __getitem__(self, index):
+        return self.objects()[index]
+
+    def __iter__(self) -> Iterator[Estimate]:
+        return iter(self.objects())
+
+    def __eq__(self, other) -> bool:
+        return self.objects() == list(other) if isinstance(other, Sequence) else NotImplemented
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return f"Estimates({len(self)} estimates)"
 
 
 def imu_rotation(config) -> np.ndarray:
@@ -149,8 +247,8 @@ def run_estimator(estimator: Estimator, samples: Iterable[Sample], batch: int = 
     return estimates
 
 
-def estimate_batches(estimator: Estimator, samples: Iterable[Sample], batch: int = 4096) -> Iterator[list[Estimate]]:
-    """`run_estimator`'s estimates, `update_batch` by `update_batch`."""
+def estimate_batches(estimator: Estimator, samples: Iterable[Sample], batch: int = 4096) -> Iterator[Estimates]:
+    """`run_estimator`'s estimates, `batch_estimates` by `batch_estimates`."""
     wanted = iter(samples_for(estimator, samples))
     while chunk := list(islice(wanted, batch)):
-        yield estimator.update_batch(chunk)
+        yield estimator.batch_estimates(chunk)

@@ -61,7 +61,7 @@ from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
 from estimators.accel_array import AccelArrayFit, RateTracker
-from estimators.base import Estimate, Estimator, stacked_readings
+from estimators.base import ESTIMATE_ROWS, Estimate, EstimateRows, Estimates, Estimator, stacked_readings
 from estimators.config import FusionConfig, TerrainEstimatorConfig
 from estimators.gating import chi2_quantile
 from estimators.leg_odometry import StanceTracker
@@ -442,24 +442,29 @@ class FusionEstimator(Estimator):
         return super().update(sample)
 
     def update_batch(self, samples: Iterable[Sample]) -> list[Estimate]:
+        """As `update` one at a time (`batch_estimates`)."""
+        return self.batch_estimates(samples if isinstance(samples, Sequence) else list(samples)).objects()
+
+    def batch_estimates(self, samples: Sequence[Sample]) -> Estimates:
         """As `update` one at a time. Once the filter is initialised, without an accelerometer array
         or a mounting rotation, the IMU samples between two encoder samples go through one compiled
         loop (`imu_samples`); the samples it leaves or stops at go the per-sample way. The foot
         samples among them touch only the stance tracker and the loads, which only a filter step
-        reads: each is applied before the next sample handled in Python."""
-        samples = samples if isinstance(samples, Sequence) else list(samples)
-        estimates: list[Estimate] = []
+        reads: each is applied before the next sample handled in Python. The estimates of the IMU
+        samples of the compiled loop stay rows (`EstimateRows`)."""
+        estimates = Estimates()
         start = 0
         while self.state is None and start < len(samples):     # the first usable IMU sample initialises
-            estimates += super().update_batch(samples[start:start + 1])
+            estimates.add(super().update_batch(samples[start:start + 1]))
             start += 1
         rest = samples[start:]
         positions = [i for i, sample in enumerate(rest) if type(sample) is ImuSample]
         imu = [rest[i] for i in positions]
         readings = self._batch_readings(imu)
         if readings is None:
-            return estimates + super().update_batch(rest)
-        batch = ImuBatch(rest, positions, imu, readings, np.empty(len(imu), dtype=IMU_OUTPUTS))
+            estimates.add(super().update_batch(rest))
+            return estimates
+        batch = ImuBatch(rest, positions, readings, readings["t"].copy(), np.empty(len(imu), dtype=IMU_OUTPUTS))
         # The IMU samples with no sample but feet between them share a run.
         others_before = np.cumsum([type(sample) not in (ImuSample, FootSample) for sample in rest])
         done = 0        # samples of `rest` handled
@@ -469,7 +474,7 @@ class FusionEstimator(Estimator):
         self._others(rest, done, len(rest), estimates)
         return estimates
 
-    def _others(self, samples: list[Sample], start: int, stop: int, estimates: list[Estimate]) -> int:
+    def _others(self, samples: list[Sample], start: int, stop: int, estimates: Estimates) -> int:
         """`update` of the samples from start to stop - 1 that are not ImuSamples (those that are
         went through `imu_samples`), appending their estimates; returns stop."""
         for sample in samples[start:stop]:
@@ -489,7 +494,7 @@ class FusionEstimator(Estimator):
         readings["t"] = [sample.t for sample in samples]
         return readings
 
-    def _imu_run(self, batch: ImuBatch, first: int, stop: int, done: int, estimates: list[Estimate]) -> int:
+    def _imu_run(self, batch: ImuBatch, first: int, stop: int, done: int, estimates: Estimates) -> int:
         """Append the estimates of the batch's IMU samples first to stop - 1 through `imu_samples`,
         which hands the samples it stops at to `_end_sample` or `update` (after the foot samples
         before them); `done` of the batch's samples were handled before, returns how many are now."""
@@ -507,7 +512,7 @@ class FusionEstimator(Estimator):
                 self._last_gyro, self._gyro_repeats = (gyro[0], gyro[1], gyro[2]), 0
             if end > row:
                 self._accel_rejected_since = None
-                estimates += self._attitude_estimates(batch, row, end)
+                estimates.add(self._attitude_estimates(batch, row, end))
             if end == stop:
                 break
             done = self._others(samples, done, positions[end], estimates)
@@ -525,19 +530,14 @@ class FusionEstimator(Estimator):
             row = end + 1
         return done
 
-    def _attitude_estimates(self, batch: ImuBatch, first: int, stop: int) -> list[Estimate]:
-        """`_attitude_estimate` of the batch's IMU samples first to stop - 1, from their outputs
-        (the step's outputs at the first, when they are not computed yet)."""
-        rows, imu = batch.out[first:stop], batch.imu[first:stop]
+    def _attitude_estimates(self, batch: ImuBatch, first: int, stop: int) -> EstimateRows:
+        """`_attitude_estimate` of the batch's IMU samples first to stop - 1, as rows of their
+        outputs (the step's outputs at the first, when they are not computed yet)."""
         if self._output is None:
-            row = rows[0]
-            self._output = self._step_output(imu[0].t, float(row["roll"]), float(row["pitch"]), float(row["yaw"]),
-                                             batch.readings[first]["gyro"])
-        output, covariances = self._output, self._pose_covariances
-        return [Estimate(sample.t, quaternion, roll, pitch, yaw, *output, position, velocity, *covariances)
-                for sample, quaternion, roll, pitch, yaw, position, velocity
-                in zip(imu, rows["quaternion"], rows["roll"].tolist(), rows["pitch"].tolist(), rows["yaw"].tolist(),
-                       rows["position"], rows["velocity"])]
+            row, reading = batch.out[first], batch.readings[first]
+            self._output = self._step_output(float(reading["t"]), float(row["roll"]), float(row["pitch"]),
+                                             float(row["yaw"]), reading["gyro"])
+        return EstimateRows(batch.times, batch.out, first, stop, self._output, self._pose_covariances)
 
     def _update_imu(self, t: float, gyro: np.ndarray | None, accel: np.ndarray | None) -> Estimate | None:
         """As Estimator's, and a reading that is not finite counts as missing too."""
@@ -891,21 +891,20 @@ def imu_sample_and_pose(record: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
 # IMU samples in time order, one element each (body frame): `imu_samples`' input.
 IMU_READINGS = np.dtype([("t", "f8"), ("gyro", "f8", 3), ("accel", "f8", 3)])     # s, rad/s, m/s^2
 
-# `imu_sample_and_pose`'s attitude (quaternion x, y, z, w; rad) and pose (body origin, world
-# frame: m, m/s) of each sample: `imu_samples`' output.
-IMU_OUTPUTS = np.dtype([("quaternion", "f8", 4), ("roll", "f8"), ("pitch", "f8"), ("yaw", "f8"),
-                        ("position", "f8", 3), ("velocity", "f8", 3)])
+# `imu_sample_and_pose`'s attitude and pose of each sample: `imu_samples`' output, the rows of
+# the estimates of a run of IMU samples.
+IMU_OUTPUTS = ESTIMATE_ROWS
 
 LEFT = -1      # `imu_samples`' status of a sample it left untouched
 
 
 class ImuBatch(NamedTuple):
-    """`FusionEstimator.update_batch`'s samples and the IMU samples among them, in order."""
+    """`FusionEstimator.batch_estimates`' samples and the IMU samples among them, in order."""
     samples: list[Sample]
     positions: list[int]       # where the IMU samples are in `samples`
-    imu: list[ImuSample]
-    readings: np.ndarray       # IMU_READINGS of `imu`
-    out: np.ndarray            # IMU_OUTPUTS of `imu`, as `imu_samples` writes them
+    readings: np.ndarray       # IMU_READINGS of the IMU samples
+    times: np.ndarray          # s, their times
+    out: np.ndarray            # IMU_OUTPUTS of the IMU samples, as `imu_samples` writes them (the estimates' rows)
 
 
 # Compiled: one call per run of IMU samples between two other samples (offline replay).

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from operator import attrgetter
 
 import numpy as np
@@ -38,7 +39,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PoseTrajectory3D
 
-from estimators.base import Estimate
+from estimators.base import ROW_FIELDS, SHARED_FIELDS, Estimate, EstimateRows, Estimates
 from estimators.gating import chi2_quantile
 from estimators.terrain import MIN_FOOT_SPREAD
 from testbed.model.spatial import wrap_angle as wrap
@@ -77,26 +78,115 @@ class TerrainTruth:
 
 
 def estimate_arrays(estimates: Sequence[Estimate]) -> EstimateArrays:
-    """The estimates' fields as columns."""
-    def values(name):
-        return list(map(attrgetter(name), estimates))
+    """The estimates' fields as columns (those of `Estimates` part by part: `part_column`)."""
+    parts = estimate_parts(estimates)
 
     def floats(name):
-        return np.array(values(name), dtype=float)
+        return np.concatenate([part_column(part, name)[0] for part in parts]) if parts else np.array([], dtype=float)
 
     def column(name):
         """Floats, NaN where an estimate has None; None when all have None."""
-        column_values = values(name)
-        return None if column_values.count(None) == len(column_values) else np.array(column_values, dtype=float)
+        per_part = [part_column(part, name) for part in parts]
+        return None if all(all_none for _, all_none in per_part) else np.concatenate([c for c, _ in per_part])
 
-    attitude_cov = stacked(values("attitude_cov"))
+    def stacked_column(name):
+        """None unless every estimate has an array."""
+        per_part = [part_column(part, name)[0] for part in parts]
+        return None if not per_part or any(c is None for c in per_part) else np.concatenate(per_part)
+
+    attitude_cov = stacked_column("attitude_cov")
     return EstimateArrays(
         t=floats("t"), roll=floats("roll"), pitch=floats("pitch"),
         tilt_cov=None if attitude_cov is None else attitude_cov[:, :2, :2],
         terrain_roll=column("terrain_roll"), terrain_pitch=column("terrain_pitch"),
         body_height=column("body_height"), yaw=floats("yaw"),
-        attitude_cov=attitude_cov, position=stacked(values("position")), velocity=stacked(values("velocity")),
-        position_cov=stacked(values("position_cov")), velocity_cov=stacked(values("velocity_cov")))
+        attitude_cov=attitude_cov, position=stacked_column("position"), velocity=stacked_column("velocity"),
+        position_cov=stacked_column("position_cov"), velocity_cov=stacked_column("velocity_cov"))
+
+
+SCALAR_FIELDS = frozenset({"t", "roll", "pitch", "yaw", "terrain_roll", "terrain_pitch", "body_height"})
+
+
+@dataclass
+class RowsRun:
+    """Consecutive `EstimateRows` of `Estimates`, whose columns are taken together."""
+    parts: list[EstimateRows]
+
+    def row_column(self, name: str) -> np.ndarray:
+        """The column of a row field ("t" or one of ESTIMATE_ROWS): one gather from each run of
+        parts that share their arrays."""
+        columns = [(part.t if name == "t" else part.rows[name])[index] for part, index in self._gathers]
+        return np.concatenate(columns) if len(columns) > 1 else columns[0]
+
+    def shared_values(self, name: str) -> list:
+        """The parts' values of a field they share among their estimates (`SHARED_FIELDS`)."""
+        return self._shared[name]
+
+    @cached_property
+    def counts(self) -> np.ndarray:
+        """The parts' numbers of estimates."""
+        return np.fromiter((part.stop - part.first for part in self.parts), dtype=np.intp, count=len(self.parts))
+
+    @cached_property
+    def _gathers(self) -> list[tuple[EstimateRows, np.ndarray]]:
+        """(the first of consecutive parts with the same arrays, the indices of their rows in them)."""
+        parts, counts = self.parts, self.counts
+        edges = [k for k in range(1, len(parts)) if parts[k].rows is not parts[k - 1].rows
+                 or parts[k].t is not parts[k - 1].t]
+        bounds = [0, *edges, len(parts)]
+        gathers = []
+        for first, stop in zip(bounds[:-1], bounds[1:]):
+            starts = np.fromiter((part.first for part in parts[first:stop]), dtype=np.intp, count=stop - first)
+            run_counts = counts[first:stop]
+            # row k of the run is row k + (its part's start - the rows before that part) of the arrays
+            offsets = np.repeat(starts - (np.cumsum(run_counts) - run_counts), run_counts)
+            gathers.append((parts[first], np.arange(len(offsets)) + offsets))
+        return gathers
+
+    @cached_property
+    def _shared(self) -> dict[str, list]:
+        columns = zip(*[part.step + part.pose_covariances for part in self.parts])
+        return dict(zip(SHARED_FIELDS, map(list, columns)))
+
+
+def estimate_parts(estimates: Sequence[Estimate]) -> list[Sequence[Estimate] | RowsRun]:
+    """The estimates in non-empty parts: lists of Estimate objects and runs of EstimateRows."""
+    if not isinstance(estimates, Estimates):
+        return [estimates] if len(estimates) else []
+    parts: list[Sequence[Estimate] | RowsRun] = []
+    for part in estimates.parts:
+        if not isinstance(part, EstimateRows):
+            parts.append(part)
+        elif parts and isinstance(parts[-1], RowsRun):
+            parts[-1].parts.append(part)
+        else:
+            parts.append(RowsRun([part]))
+    return parts
+
+
+def part_column(estimates: Sequence[Estimate] | RowsRun, name: str) -> tuple[np.ndarray | None, bool]:
+    """(column, whether every estimate has None) of one field of a part (`estimate_parts`): a
+    scalar field's floats, NaN where an estimate has None; an array field's arrays stacked, None
+    unless every estimate has one."""
+    if isinstance(estimates, RowsRun):
+        return rows_column(estimates, name)
+    values = list(map(attrgetter(name), estimates))
+    if name in SCALAR_FIELDS:
+        return np.array(values, dtype=float), values.count(None) == len(values)
+    column = stacked(values)
+    return column, column is None and all(value is None for value in values)
+
+
+def rows_column(run: RowsRun, name: str) -> tuple[np.ndarray | None, bool]:
+    """`part_column` of consecutive rows: the row fields' columns, the shared values repeated."""
+    if name == "t" or name in ROW_FIELDS:
+        return run.row_column(name), False
+    values = run.shared_values(name)
+    if name in SCALAR_FIELDS:
+        return np.repeat(np.array(values, dtype=float), run.counts), values.count(None) == len(values)
+    if any(value is None for value in values):
+        return None, all(value is None for value in values)
+    return np.repeat(np.array(values, dtype=float), run.counts, axis=0), False
 
 
 def stacked(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
