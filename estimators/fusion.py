@@ -1042,14 +1042,24 @@ def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: 
     return tracker
 
 
+# Compiled: it runs at every foot sample.
+@njit(cache=True)
 def low_passed_loads(smoothed: np.ndarray, loads: np.ndarray, elapsed: float, time_constant: float) -> np.ndarray:
     """The feet's loads `smoothed` (N) moved towards the new readings `loads` by a first-order
     low-pass of `time_constant` (s) over `elapsed` (s): what moves a planted foot is the load
     transfer, not the contact's ringing from one sample to the next. A reading that is not finite
     leaves its load as it was; a load not yet known (NaN) takes the reading."""
     weight = 1.0 if time_constant <= 0 else -math.expm1(-elapsed / time_constant)
-    moved = np.where(np.isfinite(smoothed), smoothed + weight * (loads - smoothed), loads)
-    return np.where(np.isfinite(loads), moved, smoothed)
+    moved = smoothed.copy()
+    for leg in range(loads.shape[0]):
+        load = loads[leg]
+        if not math.isfinite(load):
+            continue
+        if math.isnan(moved[leg]):
+            moved[leg] = load
+        else:
+            moved[leg] += weight * (load - moved[leg])
+    return moved
 
 
 # Compiled: it runs at every encoder sample.
