@@ -49,6 +49,7 @@ class FusionConfig:
     foot_creep_accel_std: float        # m/s^2, systematic acceleration of the stance feet's creep
     foot_sink_per_newton: float        # m/N: how far a planted foot sinks per newton of load it takes (ground compliance)
     foot_shear_per_newton: float       # m/N: how far a planted foot slides along the ground per newton of load change
+    foot_load_time_constant: float     # s: the feet's loads are low-passed with it before their changes move the feet
     foot_gate_probability: float       # chi-square gate (3 dof) of a foot's innovation; beyond it, it slipped
     bias_fault_window: float           # s, span over which the tilt corrections are summed
     bias_fault_probability: float      # chi-square (2 dof) of that sum beyond which the gyro bias changed
@@ -66,6 +67,7 @@ class FusionConfig:
         non_negative("estimators.ekf.foot_creep_accel_std", self.foot_creep_accel_std)
         non_negative("estimators.ekf.foot_sink_per_newton", self.foot_sink_per_newton)
         non_negative("estimators.ekf.foot_shear_per_newton", self.foot_shear_per_newton)
+        non_negative("estimators.ekf.foot_load_time_constant", self.foot_load_time_constant)
         non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
         non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
         positive("estimators.ekf still window", self.still_window, self.still_max_rate_dps, self.still_max_force_change,

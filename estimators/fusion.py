@@ -381,7 +381,8 @@ class FusionEstimator(Estimator):
         self._output_settings = np.zeros(1, dtype=OUTPUT_SETTINGS)
         self._output_settings[0] = self.imu_position, ROLLING_STD * ROLLING_SHARE if params.rolling_feet else 0.0
         self._start_position = np.zeros(3)   # m, world: the IMU point at the start
-        self._loads = np.zeros(NUM_FEET)      # N, the feet's latest normal forces
+        self._loads = np.full(NUM_FEET, np.nan)  # N, the feet's normal forces low-passed (`low_passed_loads`)
+        self._loads_time: float | None = None  # s, of the last foot sample
         self._step_loads = np.zeros(NUM_FEET)  # N, as they were at the last encoder sample
         self._body_turn = np.zeros(3)        # rad, the gyro's rotation vector since the last encoder sample
         self._mean_force = np.zeros(3)       # m/s^2, the last interval's (`interval_summary`)
@@ -725,7 +726,10 @@ class FusionEstimator(Estimator):
 
     def _update_feet(self, sample: FootSample) -> None:
         self.legs.add_contacts(sample.contact, sample.normal_forces)     # (checks the forces' shape)
-        self._loads = np.asarray(sample.normal_forces, dtype=float)
+        elapsed = 0.0 if self._loads_time is None else sample.t - self._loads_time
+        self._loads = low_passed_loads(self._loads, np.asarray(sample.normal_forces, dtype=float), elapsed,
+                                       self.params.foot_load_time_constant)
+        self._loads_time = sample.t
 
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
@@ -1035,6 +1039,26 @@ def _rate_tracker(params: FusionConfig, positions: np.ndarray | None, imu_rate: 
         raise ConfigError("estimators.ekf.use_gyro = false needs an accelerometer array spread along two "
                           "directions at least (sensors.accel_array.layout = quad or custom)")
     return tracker
+
+
+# Compiled: it runs at every foot sample.
+@njit(cache=True)
+def low_passed_loads(smoothed: np.ndarray, loads: np.ndarray, elapsed: float, time_constant: float) -> np.ndarray:
+    """The feet's loads `smoothed` (N) moved towards the new readings `loads` by a first-order
+    low-pass of `time_constant` (s) over `elapsed` (s): what moves a planted foot is the load
+    transfer, not the contact's ringing from one sample to the next. A reading that is not finite
+    leaves its load as it was; a load not yet known (NaN) takes the reading."""
+    weight = 1.0 if time_constant <= 0 else -math.expm1(-elapsed / time_constant)
+    moved = smoothed.copy()
+    for leg in range(loads.shape[0]):
+        load = loads[leg]
+        if not math.isfinite(load):
+            continue
+        if math.isnan(moved[leg]):
+            moved[leg] = load
+        else:
+            moved[leg] += weight * (load - moved[leg])
+    return moved
 
 
 # Compiled: it runs at every encoder sample.

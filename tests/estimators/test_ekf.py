@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from estimators.base import run_estimator
+from estimators.fusion import low_passed_loads
 from estimators.registry import make_estimator
 from estimators.scoring import anees_bounds, estimate_arrays, score
 from sensors.samples import EncoderSample, ImuSample
@@ -196,3 +197,44 @@ def test_accelerometer_offset_estimated_or_covered(config, walk, spec):
     assert low < np.mean(anees["estimated"]) < high
     assert low < np.mean(anees["considered"]) < high
     assert np.mean(ekf_rmse) < np.mean(vqf_rmse)
+
+
+FOOT_RATE = 250.0       # Hz, the foot sensors'
+
+
+def summed_squared_changes(readings: np.ndarray, time_constant: float) -> tuple[float, np.ndarray]:
+    """Run the readings (one row per foot sample) through `low_passed_loads`; the sum of the squared
+    changes of the loads (what `sink_feet` turns into foot variance) and the last loads."""
+    loads, total = np.full(readings.shape[1], np.nan), 0.0
+    for row in readings:
+        before = loads
+        loads = low_passed_loads(loads, row, 1.0 / FOOT_RATE, time_constant)
+        if np.all(np.isfinite(before)):
+            total += float(np.sum((loads - before)**2))
+    return total, loads
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_a_ringing_load_moves_the_feet_far_less_than_a_load_transfer(seed):
+    rng = np.random.default_rng(seed)
+    samples = int(2.0 * FOOT_RATE)
+    ringing = 6.0 + rng.normal(0.0, 3.0, (samples, 1))          # a steady 6 N, 3 N from sample to sample
+    transfer = np.clip(32.0 * (np.arange(samples) / FOOT_RATE - 0.5), 0.0, 8.0)[:, None]   # 0 -> 8 N in 250 ms
+    raw_ringing, _ = summed_squared_changes(ringing, 0.0)
+    smoothed_ringing, _ = summed_squared_changes(ringing, 0.05)
+    raw_transfer, _ = summed_squared_changes(transfer, 0.0)
+    smoothed_transfer, last = summed_squared_changes(transfer, 0.05)
+    assert smoothed_ringing < raw_ringing / 100.0
+    # The transfer keeps its whole change and most of its summed square: its slide is unchanged.
+    np.testing.assert_allclose(last, [8.0], rtol=1e-6)
+    assert 0.6 * raw_transfer < smoothed_transfer <= raw_transfer
+
+
+def test_load_low_pass_keeps_a_missing_reading_and_takes_the_first():
+    loads = low_passed_loads(np.full(2, np.nan), np.array([5.0, np.nan]), 0.004, 0.05)
+    np.testing.assert_array_equal(np.isnan(loads), [False, True])
+    assert loads[0] == 5.0
+    after = low_passed_loads(np.array([5.0, 3.0]), np.array([np.nan, 4.0]), 0.004, 0.05)
+    assert after[0] == 5.0
+    np.testing.assert_allclose(after[1], 3.0 + (1.0 - math.exp(-0.004 / 0.05)), rtol=1e-12)
+    np.testing.assert_array_equal(low_passed_loads(np.array([5.0, 3.0]), np.array([1.0, 2.0]), 0.004, 0.0), [1.0, 2.0])
