@@ -594,15 +594,17 @@ def _record_footholds(s, lifting, stood):
 @njit(cache=True)
 def _choose_footholds(parameters, s, lifting, twist):
     """A middle or rear swing whose planned touch-down lies between two consecutive front
-    footholds of its side that differ in height by more than RISER_HEIGHT (a step's or a block's
-    edge lies somewhere between them) aims at the nearer of the two, where the ground is known
-    to hold, if the legs reach it: not on an edge's corner, from which a foot slides off when
-    it takes the weight."""
+    footholds of its side whose heights differ by more than RISER_HEIGHT beyond what the ground's
+    slope under the front feet explains (a step's or a block's edge lies somewhere between them,
+    not a ramp's even rise) aims at the nearer of the two, where the ground is known to hold, if
+    the legs reach it: not on an edge's corner, from which a foot slides off when it takes the
+    weight. On an even ramp the swings keep their touch-downs, moved uphill (`_shift_uphill`)."""
     p = parameters[0]
     touchdown = _touchdown(parameters, twist)
     swing_time = (1.0 - p.duty) * p.period
     stride = 2.0 * abs(touchdown[0, 0] - p.neutral[0, 0])
     reach = max(0.0, 0.5 * (p.max_step_length - stride)) + FOOTHOLD_REACH
+    slope = footholds_slope(s.footholds, s.foothold_count)
     for leg in range(6):
         if not lifting[leg] or leg in FRONT_LEGS:
             continue
@@ -612,7 +614,9 @@ def _choose_footholds(parameters, s, lifting, twist):
         best, best_shift = -1, reach
         for back in range(1, min(count, FOOTHOLDS)):
             newer, older = (count - back) % FOOTHOLDS, (count - back - 1) % FOOTHOLDS
-            if abs(s.footholds[side, newer, 2] - s.footholds[side, older, 2]) <= RISER_HEIGHT:
+            run = s.footholds[side, newer, 0] - s.footholds[side, older, 0]
+            rise = s.footholds[side, newer, 2] - s.footholds[side, older, 2]
+            if abs(rise - slope * run) <= RISER_HEIGHT:
                 continue
             # where the two will be when the swing lands
             ahead = _landing_x(s.footholds[side, newer], twist, swing_time)

@@ -202,6 +202,7 @@ class LocoSet:
     long_scenarios: tuple[str, ...] = tuple(LONG_SCENARIOS)
     long_duration: float = LONG_DURATION            # s
     max_duration: float | None = None               # s, cuts the course runs short (smoke tests)
+    config_file: Path | None = None                 # TOML overriding testbed/defaults.toml in every case
 
     @property
     def full(self) -> bool:
@@ -212,24 +213,31 @@ class LocoSet:
         return [(layout, index, gait, contact) for layout in self.layouts for index in range(self.seeds)
                 for gait in self.gaits for contact in self.contacts]
 
+    def base(self) -> dict[str, Any] | None:
+        """The overrides of `config_file` (read and parsed here), or None."""
+        return config_module.read_toml(self.config_file) if self.config_file is not None else None
+
     def cases(self) -> list[Case]:
         """Every case, its config built (validated) here."""
-        cases = [course_case(*identity, self.max_duration) for identity in self.cases_of_courses()]
-        return cases + [long_case(name, self.long_duration) for name in self.long_scenarios]
+        base = self.base()
+        cases = [course_case(*identity, self.max_duration, base) for identity in self.cases_of_courses()]
+        return cases + [long_case(name, self.long_duration, base) for name in self.long_scenarios]
 
 
-def _config(overrides: dict[str, Any]) -> dict[str, Any]:
-    """Defaults, then `overrides`, with the EKF and the posture controller; validated."""
+def _config(overrides: dict[str, Any], base: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Defaults, then `base` (a user's config file), then `overrides`, with the EKF and the posture
+    controller; validated."""
     overrides["run"].update(estimator="ekf", controller="posture")
-    return config_module.load(None, overrides).to_dict()
+    return config_module.load(None, overrides, base=base).to_dict()
 
 
-def course_case(layout: str, index: int, gait: str, contact: str, max_duration: float | None = None) -> Case:
+def course_case(layout: str, index: int, gait: str, contact: str, max_duration: float | None = None,
+                base: dict[str, Any] | None = None) -> Case:
     """Walk to the target beyond `layout`'s course of seed `index`."""
     segments, target_x = layout_course(layout, index)
     seed = int(generator(COURSES, layout, index, "run").integers(2**31))
     speed = SPEEDS[gait]
-    probe = config_module.load(None, {"run": {"gait": gait}, "gait": {"speed": speed}})
+    probe = config_module.load(None, {"run": {"gait": gait}, "gait": {"speed": speed}}, base=base)
     duration = probe.gait.startup_time + probe.gait.start_ramp + DURATION_MARGIN * target_x / speed + 3.0
     duration = round(min(duration, max_duration) if max_duration else duration, 1)
     overrides = {"run": {"terrain": "course", "gait": gait, "contact": contact, "seed": seed, "duration": duration},
@@ -237,10 +245,10 @@ def course_case(layout: str, index: int, gait: str, contact: str, max_duration: 
                  "terrain": {"course": segments, "course_start": COURSE_START,
                              "extent": [-2.0, round(target_x + 1.0, 3), -WIDTH, WIDTH]}}
     features = [describe(s) for s in segments if s["kind"] != "flat"]
-    return Case(COURSES, f"{layout} {gait} {contact}", index, _config(overrides), " | ".join(features))
+    return Case(COURSES, f"{layout} {gait} {contact}", index, _config(overrides, base), " | ".join(features))
 
 
-def long_case(name: str, duration: float = LONG_DURATION) -> Case:
+def long_case(name: str, duration: float = LONG_DURATION, base: dict[str, Any] | None = None) -> Case:
     """A long tripod walk (compliant contact) on flat ground or on a course of ramps."""
     terrain, speed, period = LONG_SCENARIOS[name]
     rng = generator(LONG, name)
@@ -260,7 +268,7 @@ def long_case(name: str, duration: float = LONG_DURATION) -> Case:
         ramps = [s["angle_deg"] for s in segments if s["kind"] == "ramp"]
         description = (f"{len(ramps)} ramps of {min(abs(a) for a in ramps):.1f}-{max(abs(a) for a in ramps):.1f}°, "
                        f"up and down, over {end - COURSE_START:.0f} m")
-    return Case(LONG, name, 0, _config(overrides), description)
+    return Case(LONG, name, 0, _config(overrides, base), description)
 
 
 # --- running them ----------------------------------------------------------------------------

@@ -30,6 +30,8 @@ def add_subcommands(subparsers) -> None:
                         help=f"simulated seconds of each long walk (default {locobench.LONG_DURATION:g})")
     parser.add_argument("--max-duration", type=float, metavar="SECONDS",
                         help="cut the course runs at this many simulated seconds (a quick look; no target is reached)")
+    parser.add_argument("--config", type=Path, metavar="FILE",
+                        help="TOML file overriding testbed/defaults.toml in every case (part of the cache key)")
     parser.add_argument("--workers", type=int, default=2, metavar="N", help="processes (default 2)")
     parser.add_argument("--cache", type=Path, default=CACHE, metavar="DIR",
                         help=f"the runs' metrics JSON (default {CACHE})")
@@ -65,7 +67,7 @@ def loco_set_from_args(args: argparse.Namespace) -> LocoSet:
         _names(args.long, "--long", tuple(LONG_SCENARIOS), none_allowed=True)
     loco_set = LocoSet(args.seeds, _names(args.layouts, "--layouts", tuple(LAYOUTS), none_allowed=True),
                        _names(args.gaits, "--gaits", GAITS), _names(args.contacts, "--contacts", CONTACTS),
-                       long, args.long_duration, args.max_duration)
+                       long, args.long_duration, args.max_duration, args.config)
     if not loco_set.layouts and not loco_set.long_scenarios:
         raise UserError("nothing to run: --layouts none and --long none")
     return loco_set

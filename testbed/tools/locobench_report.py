@@ -217,9 +217,10 @@ def command_line(loco_set: locobench.LocoSet) -> str:
                                   ("--gaits", loco_set.gaits, full.gaits), ("--contacts", loco_set.contacts, full.contacts),
                                   ("--long", loco_set.long_scenarios, full.long_scenarios),
                                   ("--long-duration", loco_set.long_duration, full.long_duration),
-                                  ("--max-duration", loco_set.max_duration, full.max_duration)):
+                                  ("--max-duration", loco_set.max_duration, full.max_duration),
+                                  ("--config", loco_set.config_file, full.config_file)):
         if mine != default:
-            text = ",".join(mine) if isinstance(mine, tuple) else f"{mine:g}"
+            text = ",".join(mine) if isinstance(mine, tuple) else str(mine) if isinstance(mine, Path) else f"{mine:g}"
             words.append(f"{option} {text or 'none'}" if " " not in text else f"{option} '{text}'")
     return " ".join(words + ["--docs"])
 
@@ -248,6 +249,7 @@ def set_description(result: LocoResult) -> str:
                f"x contact models {', '.join(s.contacts)} ({_count(len(s.cases_of_courses()), 'run')})"
                if s.layouts else "no course runs")
     cut = f", course runs cut at {s.max_duration:g} s" if s.max_duration else ""
+    cut += f", every case with the settings of {s.config_file} over the defaults" if s.config_file else ""
     long = (f"{', '.join(s.long_scenarios)} for {s.long_duration:g} s each" if s.long_scenarios else "no long walks")
     return f"{label}: {courses}{cut}; {long}."
 

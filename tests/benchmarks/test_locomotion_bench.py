@@ -107,6 +107,32 @@ def test_the_cache_key_follows_the_config():
     assert changed.key != case.key
 
 
+def test_a_config_file_overrides_the_defaults_in_every_case_and_enters_the_cache_key(tmp_path):
+    settings = tmp_path / "shear0.toml"
+    settings.write_text('[run]\nestimator = "none"\ngait = "wave"\n'
+                        '[estimators.ekf]\nfoot_shear_per_newton = 0.0\n[gait]\nswing_height = 0.045\n')
+    plain = LocoSet(seeds=1, layouts=("C",), gaits=("tripod", "ripple"), contacts=("dart",),
+                    long_scenarios=("flat 0.1 m/s",))
+    configured = LocoSet(**{**plain.__dict__, "config_file": settings})
+    for before, after in zip(plain.cases(), configured.cases(), strict=True):
+        assert after.config["estimators"]["ekf"]["foot_shear_per_newton"] == 0.0
+        assert before.config["estimators"]["ekf"]["foot_shear_per_newton"] > 0.0
+        assert after.config["gait"]["swing_height"] == 0.045
+        # the case's own settings win over the file's: its gait, the EKF and the posture controller
+        assert (after.config["run"]["gait"], after.config["run"]["estimator"]) == (before.config["run"]["gait"], "ekf")
+        assert after.config["terrain"] == before.config["terrain"] and after.key != before.key
+    assert not configured.full
+    assert f"--config {settings}" in locobench_report.command_line(configured)
+
+
+def test_locobench_command_rejects_a_missing_config_file_in_one_line(tmp_path, capsys):
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    assert main(["locobench", "--out", str(out), "--cache", str(cache), "--config", str(tmp_path / "no.toml")]) == 2
+    error = capsys.readouterr().err
+    assert "config file not found" in error and error.count("\n") == 1 and "Traceback" not in error
+    assert not out.exists() and not cache.exists()
+
+
 def result(scenario: str, group: str = COURSES, **metrics) -> CaseResult:
     base = {"fell": False, "left_terrain": False, "error": None, "tilt_rms_deg": 0.2, "tilt_max_deg": 0.8,
             "height_error_rms_m": 0.002, "ik_limited_ticks": 0, "target_error_m": 0.01, "distance_m": 4.0,

@@ -316,6 +316,28 @@ def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_o
     assert footholds_slope(footholds, count) == 0.0
 
 
+@pytest.mark.parametrize("ground, aims", [("ramp", False), ("step", True)])
+def test_rear_feet_aim_at_front_footholds_around_an_edge_but_not_on_an_even_ramp(ground, aims):
+    """The left rear foot lifts with its planned touch-down between two front footholds 3 cm apart
+    that differ by 1.1 cm in height: on an even 20 deg ramp (the slope of the front footholds
+    explains the rise) it keeps its touch-down, which the uphill shift moves; with a 3 cm step
+    between them (the same heights elsewhere level) it aims at the nearer foothold."""
+    from testbed.control.gait import _choose_footholds, _touchdown
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, dataclasses.replace(STEPPING, slope_shift=0.08))
+    s, speed, rear = gait.state_record[0], 0.1, 2
+    twist = (speed, 0.0, 0.0)
+    planned = _touchdown(gait.parameters, twist)[rear, 0]
+    x = planned + speed * 0.5 + np.array([-0.075, -0.045, -0.015, 0.015, 0.045, 0.075])   # oldest first
+    z = np.tan(np.radians(20.0)) * x if ground == "ramp" else np.where(x > planned + speed * 0.5, 0.03, 0.0)
+    for side, y in enumerate((0.16, -0.16)):
+        s["footholds"][side] = np.column_stack([x, np.full(FOOTHOLDS, y), z - 0.09])
+    s["foothold_count"][:] = FOOTHOLDS
+    lifting = np.zeros(6, dtype=bool)
+    lifting[rear] = True
+    _choose_footholds(gait.parameters, s, lifting, twist)
+    assert (s["aim"][rear] in (2, 3)) if aims else (s["aim"][rear] == -1)
+
+
 def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_and_the_edge_rises_with_it():
     """Foot 0 met a riser at x = 0.20 m (gait frame), 3 cm above its lift-off, on its way down.
     While the foot itself is lower than the edge plus the clearance by more than RISER_HEIGHT, its
