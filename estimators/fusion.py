@@ -1054,7 +1054,7 @@ def low_passed_loads(smoothed: np.ndarray, loads: np.ndarray, elapsed: float, ti
         load = loads[leg]
         if not math.isfinite(load):
             continue
-        if math.isnan(moved[leg]):
+        if math.isnan(moved[leg]) or weight == 1.0:
             moved[leg] = load
         else:
             moved[leg] += weight * (load - moved[leg])
