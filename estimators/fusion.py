@@ -487,8 +487,10 @@ class FusionEstimator(Estimator):
         """The IMU samples' IMU_READINGS for `imu_samples`, or None when the per-sample path must
         take them all: an accelerometer array or a mounting rotation, or readings that are not
         3-vectors."""
+        if self.state is None or self.array is not None or self._body_from_imu is not None:
+            return None
         stacked = stacked_readings(samples)
-        if stacked is None or self.state is None or self.array is not None or self._body_from_imu is not None:
+        if stacked is None:
             return None
         readings = np.empty(len(samples), dtype=IMU_READINGS)
         readings["gyro"], readings["accel"] = stacked

@@ -423,20 +423,22 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
+    slope = 0.0     # dz/dx under the front feet (`footholds_slope`)
     if raises:
         _plan_lifts(parameters, s, lifting, ~swinging)
         if measured is None:
             _record_footholds(s, lifting, feet)
         else:
             _record_footholds(s, lifting, measured)
-        _choose_footholds(parameters, s, lifting, twist)
+        slope = footholds_slope(s.footholds, s.foothold_count)
+        _choose_footholds(parameters, s, lifting, twist, slope)
     swinging |= lifting
     _store_flags(s.swinging, swinging)
     _store_flags(s.scheduled, now)
     touchdown = _touchdown(parameters, twist)
     if raises:
         _onto_footholds(s, touchdown, swinging)
-        _shift_uphill(p.slope_shift * footholds_slope(s.footholds, s.foothold_count), touchdown, s.aim, swinging)
+        _shift_uphill(p.slope_shift * slope, touchdown, s.aim, swinging)
         _beyond_edges(parameters, s, touchdown)
     plane_height = 0.0
     if follows_terrain:
@@ -592,7 +594,7 @@ def _record_footholds(s, lifting, stood):
 
 
 @njit(cache=True)
-def _choose_footholds(parameters, s, lifting, twist):
+def _choose_footholds(parameters, s, lifting, twist, slope):
     """A middle or rear swing whose planned touch-down lies between two consecutive front
     footholds of its side whose heights differ by more than RISER_HEIGHT beyond what the ground's
     slope under the front feet explains (a step's or a block's edge lies somewhere between them,
@@ -604,7 +606,6 @@ def _choose_footholds(parameters, s, lifting, twist):
     swing_time = (1.0 - p.duty) * p.period
     stride = 2.0 * abs(touchdown[0, 0] - p.neutral[0, 0])
     reach = max(0.0, 0.5 * (p.max_step_length - stride)) + FOOTHOLD_REACH
-    slope = footholds_slope(s.footholds, s.foothold_count)
     for leg in range(6):
         if not lifting[leg] or leg in FRONT_LEGS:
             continue

@@ -334,7 +334,7 @@ def test_rear_feet_aim_at_front_footholds_around_an_edge_but_not_on_an_even_ramp
     s["foothold_count"][:] = FOOTHOLDS
     lifting = np.zeros(6, dtype=bool)
     lifting[rear] = True
-    _choose_footholds(gait.parameters, s, lifting, twist)
+    _choose_footholds(gait.parameters, s, lifting, twist, footholds_slope(s["footholds"], s["foothold_count"]))
     assert (s["aim"][rear] in (2, 3)) if aims else (s["aim"][rear] == -1)
 
 
