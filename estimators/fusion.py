@@ -14,12 +14,16 @@ and the gyro bias, and their variances grow with the distance walked and the tim
 
 Rolling feet: a planted foot sphere whose contact sticks rolls as its tibia turns, its centre moving
 by s_i = dphi x (r n) (estimators/leg_odometry.py); a contact that anchors the point under the
-centre keeps the centre still. Which one the ground does is not known beforehand (DART's rigid
-contact rolls, the compliant model anchors), and either assumption, wrong, biases the velocity by
-2 to 3 % of the distance walked. The filter moves each tracked foot by k s_i with a fixed rolling
+centre keeps the centre still. Which one the ground does is not known beforehand, and either
+assumption, wrong, biases the velocity by 2 to 3 % of the distance walked. (Measured from truth,
+neither contact rolls much: DART's corner feet move 0.20-0.25 of the modelled rolling along
+their leg, and slide across it at the friction limit; the compliant feet stay. docs/estimators.md,
+"Position drift on DART contact".) The filter moves each tracked foot by k s_i with a fixed rolling
 fraction k = ROLLING_FRACTION, and adds the rest, (ROLLING_STD s_i)^2 per axis, to the foot's
 variance. (k as a state does not work: the feet's innovations pull it to about 0 on both
-contacts, through the start-up poses and while walking, although k = 1 walks straightest on DART.)
+contacts, through the start-up poses and while walking, although k = 1 walks straightest on DART:
+the encoder noise enters both the rolling, through the joint increments, and the kinematics,
+which biases k down.)
 
 The IMU drives the prediction (strapdown: the specific force is an input, not a measurement),
 summed between filter steps by `preintegration` (Forster et al. 2017). Over an interval dt from
