@@ -368,3 +368,59 @@ def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_a
     measured[0] = (0.20, NEUTRAL[0, 1], ground + 0.035)               # lower: the edge stays
     _short_of_edges(parameters, s, touched, measured, stance)
     assert s["edge"][0, 1] == pytest.approx(ground + 0.04)
+
+
+LOADING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=np.inf,
+                            load_time=0.06)
+
+
+def test_no_leg_lifts_before_the_feet_that_landed_held_their_contact_for_the_load_time():
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, LOADING)
+    _, swinging = run_gait(gait, 3.0, Twist(vx=0.1), NEUTRAL[:, 2])
+    landings = np.argwhere(np.diff(swinging.astype(int), axis=0) == -1)
+    liftoffs = np.argwhere(np.diff(swinging.astype(int), axis=0) == 1)
+    assert len(landings) >= 12 and len(liftoffs) >= 12
+    for tick, leg in liftoffs:
+        before = landings[landings[:, 0] <= tick]
+        if len(before):
+            assert (tick - before[:, 0].max()) * DT >= 0.06 - 1.5 * DT
+    # The clock waited the load time at each of the five tripod landings before the last lift-off,
+    # on top of what it waits without one (a tick of search at a landing).
+    loading_wait = gait.waited
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, dataclasses.replace(LOADING, load_time=0.0))
+    run_gait(gait, 3.0, Twist(vx=0.1), NEUTRAL[:, 2])
+    assert loading_wait - gait.waited == pytest.approx(5 * 0.06, abs=5 * DT)
+
+
+def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg_lifts():
+    """The front left foot lands on a block's corner and slides off it 20 ms later, 25 mm down:
+    its contact is lost within the load time, so it reaches down again for the ground below while
+    the other tripod stands, and that one lifts only once the foot has held its new ground for
+    the load time."""
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, LOADING)
+    ground = NEUTRAL[:, 2].copy()
+    landed = slid = None
+    heights, swinging = [], []
+    for k in range(1, 2800):
+        feet = gait.state.feet
+        contact = feet[:, 2] <= ground + 1e-9
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], ground)
+        was_swinging = gait.state.swinging[0]
+        gait.step(k * DT, DT, Twist(vx=0.1), contact, measured)
+        if landed is None and k * DT > 1.2 and was_swinging and not gait.state.swinging[0]:
+            landed = k
+        if landed is not None and slid is None and k == landed + 20:
+            ground[0] -= 0.025                  # off the corner
+            slid = k
+        heights.append(gait.state.feet[0, 2])
+        swinging.append(gait.state.swinging.copy())
+    heights, swinging = np.array(heights), np.array(swinging)
+    landed, slid = landed - 1, slid - 1                         # rows of the lists
+    assert swinging[slid + 1, 0]                                    # back in the air, searching
+    relanded = slid + 1 + np.argmax(~swinging[slid + 1:, 0])
+    assert heights[relanded] == pytest.approx(ground[0], abs=2e-4)  # down on the ground below
+    others = swinging[:, [1, 3, 5]].any(axis=1)                 # the tripod it relieves
+    assert not others[landed:relanded].any()
+    first_lift = relanded + np.argmax(others[relanded:])
+    assert others[first_lift] and (first_lift - relanded) * DT >= 0.06 - 1.5 * DT
