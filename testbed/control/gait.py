@@ -427,7 +427,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
             _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
         _store_flags(s.swinging, swinging)
         return True, 0.0
-    if lifting.any() and _still_loading(s.loading, swinging):
+    if lifting.any() and _still_loading(s.loading, swinging, lifting):
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
@@ -488,7 +488,8 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
 @njit(cache=True)
 def _slid_off(load_time, loading, touched, contact, swinging, dt):
     """Load transfer: a foot that lands holds its contact for `load_time` (s) while the legs it
-    relieves still stand (`_still_loading`), taking its share of the weight. One that loses its
+    relieves still stand (`_still_loading`: where their lift would leave three feet down),
+    taking its share of the weight. One that loses its
     contact meanwhile has slid off an edge or a block's corner as it took weight: the legs that
     lifted now would have left the body on too few feet. Returns those feet, to search for
     ground again."""
@@ -503,7 +504,12 @@ def _slid_off(load_time, loading, touched, contact, swinging, dt):
 
 
 @njit(cache=True)
-def _still_loading(loading, swinging):
+def _still_loading(loading, swinging, lifting):
+    """Whether a landed foot is still taking its load while the legs about to lift would leave
+    the body on three feet or fewer (the tripod's): with four or more down (ripple, wave) one
+    foot that slides off leaves a support that holds."""
+    if (~swinging & ~lifting).sum() > 3:
+        return False
     for leg in range(6):
         if loading[leg] > 0.0 and not swinging[leg]:
             return True

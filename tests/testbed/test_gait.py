@@ -390,6 +390,13 @@ def test_no_leg_lifts_before_the_feet_that_landed_held_their_contact_for_the_loa
     gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, dataclasses.replace(LOADING, load_time=0.0))
     run_gait(gait, 3.0, Twist(vx=0.1), NEUTRAL[:, 2])
     assert loading_wait - gait.waited == pytest.approx(5 * 0.06, abs=5 * DT)
+    # Ripple lifts a leg with four feet down: it does not wait.
+    waits = []
+    for adaptation in (LOADING, dataclasses.replace(LOADING, load_time=0.0)):
+        gait = GaitGenerator("ripple", NEUTRAL, 1.2, 0.03, adaptation)
+        run_gait(gait, 3.0, Twist(vx=0.06), NEUTRAL[:, 2])
+        waits.append(gait.waited)
+    assert waits[0] == waits[1]
 
 
 def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg_lifts():
