@@ -85,6 +85,9 @@ FOOTHOLD_REACH = 0.005
 SLOPE_FOOTHOLDS = 4
 SLOPE_FIT = 0.004
 SLOPE_SHIFT_LIMIT = 0.04
+# m off the plane of the feet that stood before it: a landing on uneven ground takes its load
+# before the legs it relieves lift (TerrainAdaptation.load_time)
+UNEVEN_LANDING = 0.005
 
 
 class Twist(NamedTuple):
@@ -116,7 +119,7 @@ class TerrainAdaptation:
     edge_margin: float = 0.0    # m, a foot blocked by a riser lands at least this far beyond it
     max_step_length: float = 0.0    # m, the longest stride the legs reach (a follower's aim at a foothold)
     slope_shift: float = 0.0    # m per unit of the ground's slope under the front feet: touch-downs move uphill
-    load_time: float = 0.0      # s a landed foot keeps its contact before a leg lifts; 0: lift at once
+    load_time: float = 0.0      # s a foot landed on uneven ground keeps its contact before a leg lifts; 0: lift at once
 
     @property
     def follows_terrain(self) -> bool:
@@ -417,7 +420,9 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     if raises:
         _remember_landings(s, touched)
     if p.load_time > 0.0:
-        swinging |= _slid_off(p.load_time, s.loading, touched, contact, swinging, dt) & ~now
+        uneven = _off_the_stance_plane(feet, touched, swinging, p.neutral_height)
+        # back in the air: on its ellipse again if its swing's time is not up, else searching
+        swinging |= _slid_off(p.load_time, s.loading, touched & uneven, contact, swinging, dt)
     searching = swinging & ~now
     _store_flags(s.searching, searching)
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
@@ -483,6 +488,21 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         s.edge[leg, 1] -= shift
     s.footholds[:, :, 2] -= shift
     return False, shift
+
+
+@njit(cache=True)
+def _off_the_stance_plane(feet, touched, swinging, neutral_height):
+    """The feet among `touched` that landed more than UNEVEN_LANDING above or below the plane of
+    the feet that stood before them: on a block, a step, a stair or past a ramp's gradient
+    change, where a foot can stand on an edge's corner. On even ground none."""
+    stood = ~swinging & ~touched
+    plane_height, slope_x, slope_y = walk_plane(feet, stood, neutral_height)
+    uneven = np.zeros(6, dtype=np.bool_)
+    for leg in range(6):
+        if touched[leg] and stood.sum() >= 3:
+            ground = plane_height + slope_x * feet[leg, 0] + slope_y * feet[leg, 1]
+            uneven[leg] = abs(feet[leg, 2] - ground) > UNEVEN_LANDING
+    return uneven
 
 
 @njit(cache=True)

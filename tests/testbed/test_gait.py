@@ -370,42 +370,31 @@ def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_a
     assert s["edge"][0, 1] == pytest.approx(ground + 0.04)
 
 
-LOADING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=np.inf,
+LOADING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=0.3,
                             load_time=0.06)
 
 
-def test_no_leg_lifts_before_the_feet_that_landed_held_their_contact_for_the_load_time():
-    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, LOADING)
-    _, swinging = run_gait(gait, 3.0, Twist(vx=0.1), NEUTRAL[:, 2])
-    landings = np.argwhere(np.diff(swinging.astype(int), axis=0) == -1)
-    liftoffs = np.argwhere(np.diff(swinging.astype(int), axis=0) == 1)
-    assert len(landings) >= 12 and len(liftoffs) >= 12
-    for tick, leg in liftoffs:
-        before = landings[landings[:, 0] <= tick]
-        if len(before):
-            assert (tick - before[:, 0].max()) * DT >= 0.06 - 1.5 * DT
-    # The clock waited the load time at each of the five tripod landings before the last lift-off,
-    # on top of what it waits without one (a tick of search at a landing).
-    loading_wait = gait.waited
-    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, dataclasses.replace(LOADING, load_time=0.0))
-    run_gait(gait, 3.0, Twist(vx=0.1), NEUTRAL[:, 2])
-    assert loading_wait - gait.waited == pytest.approx(5 * 0.06, abs=5 * DT)
-    # Ripple lifts a leg with four feet down: it does not wait.
-    waits = []
-    for adaptation in (LOADING, dataclasses.replace(LOADING, load_time=0.0)):
-        gait = GaitGenerator("ripple", NEUTRAL, 1.2, 0.03, adaptation)
-        run_gait(gait, 3.0, Twist(vx=0.06), NEUTRAL[:, 2])
-        waits.append(gait.waited)
-    assert waits[0] == waits[1]
+def test_the_lifts_do_not_wait_for_the_load_time_on_even_ground():
+    """On even ground no landing is off the plane of the feet that stood before it: the lifts do
+    not wait (the next test: they do after one that is)."""
+    waits = {}
+    for name, period, speed, ground in (("tripod", 1.0, 0.1, NEUTRAL[:, 2]), ("ripple", 1.2, 0.06, NEUTRAL[:, 2])):
+        for adaptation in (LOADING, dataclasses.replace(LOADING, load_time=0.0)):
+            gait = GaitGenerator(name, NEUTRAL, period, 0.03, adaptation)
+            run_gait(gait, 3.0, Twist(vx=speed), ground)
+            waits[name, ground[0], adaptation.load_time] = gait.waited
+    assert waits["tripod", NEUTRAL[0, 2], 0.06] == waits["tripod", NEUTRAL[0, 2], 0.0]
+    assert waits["ripple", NEUTRAL[0, 2], 0.06] == waits["ripple", NEUTRAL[0, 2], 0.0]
 
 
 def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg_lifts():
-    """The front left foot lands on a block's corner and slides off it 20 ms later, 25 mm down:
+    """The front left foot lands on a block's corner (2 cm up) and slides off it 20 ms later, 3 cm down:
     its contact is lost within the load time, so it reaches down again for the ground below while
     the other tripod stands, and that one lifts only once the foot has held its new ground for
     the load time."""
     gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, LOADING)
     ground = NEUTRAL[:, 2].copy()
+    ground[0] += 0.02
     landed = slid = None
     heights, swinging = [], []
     for k in range(1, 2800):
@@ -418,13 +407,13 @@ def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg
         if landed is None and k * DT > 1.2 and was_swinging and not gait.state.swinging[0]:
             landed = k
         if landed is not None and slid is None and k == landed + 20:
-            ground[0] -= 0.025                  # off the corner
+            ground[0] -= 0.03                   # off the corner
             slid = k
         heights.append(gait.state.feet[0, 2])
         swinging.append(gait.state.swinging.copy())
     heights, swinging = np.array(heights), np.array(swinging)
     landed, slid = landed - 1, slid - 1                         # rows of the lists
-    assert swinging[slid + 1, 0]                                    # back in the air, searching
+    assert swinging[slid + 1, 0]                                    # back in the air
     relanded = slid + 1 + np.argmax(~swinging[slid + 1:, 0])
     assert heights[relanded] == pytest.approx(ground[0], abs=2e-4)  # down on the ground below
     others = swinging[:, [1, 3, 5]].any(axis=1)                 # the tripod it relieves
