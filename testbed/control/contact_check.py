@@ -20,7 +20,8 @@ joint encoders and the targets the pilot gave the servos, can contradict a flag:
 A flag on a foot in the air is not believed; a foot held up touches whatever its sensor says.
 A working sensor reads no ground at some point of every swing (a foot that then meets a riser or
 a step's top reads ground in the air, rightly): ground read in the air by a sensor that has not
-read "none" since the swing began, or no ground under a foot held up, is disagreement; it adds up (and is forgotten at `forgetting` s per s of
+read "none" since the swing began, and since its landing part began (a riser touched on the way
+up is cleared by then), or no ground under a foot held up, is disagreement; it adds up (and is forgotten at `forgetting` s per s of
 agreement); at `fault_time` the sensor is marked faulty, and at once for a dropped (NaN)
 reading. A marked sensor's flag is ignored: a swinging foot touches when it is held up or has
 come down to the stance feet's plane, a stance foot stands. It is trusted again once it has read
@@ -64,7 +65,8 @@ CHECK_STATE = np.dtype([
     ("disagreement", "f8", 6),          # s the flag has disagreed with the kinematics (while trusted)
     ("agreement", "f8", (6, 2)),        # s it read no ground in the air, and ground in stance (while faulty)
     ("was_swinging", "u1", 6),          # the leg swung at the last tick
-    ("released", "u1", 6),              # its sensor has read no ground since the swing began
+    ("was_landing", "u1", 6),           # the leg's swing was in its landing part at the last tick
+    ("released", "u1", 6),              # its sensor has read no ground since the swing (its landing part) began
     ("marked", "i8"),                   # sensors marked faulty so far
 ])
 
@@ -157,11 +159,15 @@ def checked_contact(flags, forces, measured, gait_frame, gait_state, state, para
         dropped = not np.isfinite(forces[leg])
         # A working sensor reads no ground at some point of every swing; one that touches a
         # riser or a step's top reads ground in the air, rightly, but only after that.
-        if swinging[leg] and s.was_swinging[leg] == 0:
+        # ... and, as it comes down, in the air before its landing part: a riser touched on the
+        # way up is cleared by then, a sensor stuck on reads ground on through the whole swing.
+        entering_landing = swinging[leg] and landing[leg] and s.was_landing[leg] == 0
+        if (swinging[leg] and s.was_swinging[leg] == 0) or entering_landing:
             s.released[leg] = 0
         if not flags[leg]:
             s.released[leg] = 1
         s.was_swinging[leg] = 1 if swinging[leg] else 0
+        s.was_landing[leg] = 1 if swinging[leg] and landing[leg] else 0
         disagrees = dropped or (flags[leg] and in_air and s.released[leg] == 0) or (held_up and not flags[leg])
         if faulty[leg] == 0:
             disagreement[leg] = disagreement[leg] + p.dt if disagrees else \

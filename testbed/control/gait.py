@@ -85,6 +85,9 @@ FOOTHOLD_REACH = 0.005
 SLOPE_FOOTHOLDS = 4
 SLOPE_FIT = 0.004
 SLOPE_SHIFT_LIMIT = 0.04
+# m off the plane of the feet that stood before it: a landing on uneven ground takes its load
+# before the legs it relieves lift (TerrainAdaptation.load_time)
+UNEVEN_LANDING = 0.005
 
 
 class Twist(NamedTuple):
@@ -116,6 +119,7 @@ class TerrainAdaptation:
     edge_margin: float = 0.0    # m, a foot blocked by a riser lands at least this far beyond it
     max_step_length: float = 0.0    # m, the longest stride the legs reach (a follower's aim at a foothold)
     slope_shift: float = 0.0    # m per unit of the ground's slope under the front feet: touch-downs move uphill
+    load_time: float = 0.0      # s a foot landed on uneven ground keeps its contact before a leg lifts; 0: lift at once
 
     @property
     def follows_terrain(self) -> bool:
@@ -152,6 +156,7 @@ GAIT_PARAMETERS = np.dtype([
     ("edge_margin", "f8"),
     ("max_step_length", "f8"),          # m, the longest stride the legs reach
     ("slope_shift", "f8"),              # m per unit slope, touch-downs move uphill
+    ("load_time", "f8"),                # s a landed foot keeps its contact before a leg lifts
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -160,6 +165,7 @@ GAIT_STATE = np.dtype([
     ("liftoff", "f8", (6, 3)),          # where each swing began
     ("search_floor", "f8", 6),          # m, lowest a swing foot reaches down for ground
     ("lift", "f8", 6),                  # m, height of each leg's current swing
+    ("loading", "f8", 6),               # s each landed foot still has to hold its contact; 0: loaded
     ("raised", "f8", 6),                # m, extra height for a leg's next swing after a blocked one
     ("edge", "f8", (6, 2)),             # (x, z) of a riser a swing foot met, gait frame; x NaN: none
     ("footholds", "f8", (2, FOOTHOLDS, 3)),   # per side (left, right): where its front foot stood at its
@@ -201,7 +207,7 @@ class GaitGenerator:
                              ("plane_time_constant", search.plane_time_constant),
                              ("clearance", search.clearance), ("max_swing_height", search.max_swing_height),
                              ("edge_margin", search.edge_margin), ("max_step_length", search.max_step_length),
-                             ("slope_shift", search.slope_shift),
+                             ("slope_shift", search.slope_shift), ("load_time", search.load_time),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
@@ -413,6 +419,10 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     swinging &= ~touched
     if raises:
         _remember_landings(s, touched)
+    if p.load_time > 0.0:
+        uneven = _off_the_stance_plane(feet, touched, swinging, p.neutral_height)
+        # back in the air: on its ellipse again if its swing's time is not up, else searching
+        swinging |= _slid_off(p.load_time, s.loading, touched & uneven, contact, swinging, dt)
     searching = swinging & ~now
     _store_flags(s.searching, searching)
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
@@ -420,6 +430,9 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         _search(feet, swinging, searching, search_floor, p.search_speed * dt)
         if raises:
             _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
+        _store_flags(s.swinging, swinging)
+        return True, 0.0
+    if lifting.any() and _still_loading(s.loading, swinging, lifting):
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
@@ -475,6 +488,52 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         s.edge[leg, 1] -= shift
     s.footholds[:, :, 2] -= shift
     return False, shift
+
+
+@njit(cache=True)
+def _off_the_stance_plane(feet, touched, swinging, neutral_height):
+    """The feet among `touched` that landed more than UNEVEN_LANDING above or below the plane of
+    the feet that stood before them: on a block, a step, a stair or past a ramp's gradient
+    change, where a foot can stand on an edge's corner. On even ground none."""
+    stood = ~swinging & ~touched
+    plane_height, slope_x, slope_y = walk_plane(feet, stood, neutral_height)
+    uneven = np.zeros(6, dtype=np.bool_)
+    for leg in range(6):
+        if touched[leg] and stood.sum() >= 3:
+            ground = plane_height + slope_x * feet[leg, 0] + slope_y * feet[leg, 1]
+            uneven[leg] = abs(feet[leg, 2] - ground) > UNEVEN_LANDING
+    return uneven
+
+
+@njit(cache=True)
+def _slid_off(load_time, loading, touched, contact, swinging, dt):
+    """Load transfer: a foot that lands holds its contact for `load_time` (s) while the legs it
+    relieves still stand (`_still_loading`: where their lift would leave three feet down),
+    taking its share of the weight. One that loses its
+    contact meanwhile has slid off an edge or a block's corner as it took weight: the legs that
+    lifted now would have left the body on too few feet. Returns those feet, to search for
+    ground again."""
+    slid = np.zeros(6, dtype=np.bool_)
+    for leg in range(6):
+        if touched[leg]:
+            loading[leg] = load_time
+        elif loading[leg] > 0.0 and not swinging[leg]:
+            slid[leg] = not contact[leg]
+            loading[leg] = 0.0 if slid[leg] else max(0.0, loading[leg] - dt)
+    return slid
+
+
+@njit(cache=True)
+def _still_loading(loading, swinging, lifting):
+    """Whether a landed foot is still taking its load while the legs about to lift would leave
+    the body on three feet or fewer (the tripod's): with four or more down (ripple, wave) one
+    foot that slides off leaves a support that holds."""
+    if (~swinging & ~lifting).sum() > 3:
+        return False
+    for leg in range(6):
+        if loading[leg] > 0.0 and not swinging[leg]:
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -37,6 +37,8 @@ KNEE_UP = elbow_sign("up")
 # The start-up's crouch: the reach lacking in a tilted pose changes with the crouch through the
 # tilt; a few fixed-point steps settle it to well under a millimetre.
 CROUCH_ITERATIONS = 4
+# m: a swing foot target out of its leg's reach is tried this much lower, in turn (Pilot._lower_swings_to_reach)
+SWING_LOWERING = (0.0025, 0.005, 0.01, 0.015, 0.02, 0.03)
 
 
 class Pilot(Controller):
@@ -173,6 +175,8 @@ class Pilot(Controller):
             targets, self.joint_targets, reachable = body_targets_and_joints(
                 feet, self._applied_correction(), tilt, self.geometry.arrays, last_joints, self.encoder_feet,
                 self._gait_frame_feet)
+        if not reachable and walking and self.max_crouch > 0.0:
+            targets, self.joint_targets, reachable = self._lower_swings_to_reach(feet, tilt, last_joints)
         feet = targets
         self.body_targets = feet
         self._gait_frame_stale = self.posture_law is None
@@ -203,6 +207,22 @@ class Pilot(Controller):
             return True
         self.crouch += (wanted - self.crouch) * self.crouch_rate
         return False
+
+    def _lower_swings_to_reach(self, feet: np.ndarray, tilt: tuple[float, float], last_joints: np.ndarray):
+        """(targets, joints, reachable) with the swing feet's targets lowered by the least of
+        SWING_LOWERING's steps that lets every leg reach them: a swing raised over a step or a
+        riser, the body lowered on the stairs' next tread, folds the knee past its joint limit
+        (the femur's upper limit) when its foot comes up close under the hip."""
+        swinging = self.gait.state.swinging
+        lowered = feet.copy()
+        for drop in SWING_LOWERING:
+            lowered[:, 2] = np.where(swinging, feet[:, 2] - drop, feet[:, 2])
+            targets, joints, reachable = body_targets_and_joints(
+                lowered, self._applied_correction(), tilt, self.geometry.arrays, last_joints, self.encoder_feet,
+                self._gait_frame_feet)
+            if reachable:
+                break
+        return targets, joints, reachable
 
     def _level_gait_frame(self, roll: float, pitch: float) -> None:
         """Turn the gait frame towards level, by its tilt with respect to gravity (the estimated
@@ -303,7 +323,8 @@ def terrain_adaptation(config) -> TerrainAdaptation:
     posture = config.posture
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
                              posture.walk_plane_time_constant, posture.step_clearance, posture.max_swing_height,
-                             posture.edge_margin, config.gait.max_step_length, posture.slope_stance_shift)
+                             posture.edge_margin, config.gait.max_step_length, posture.slope_stance_shift,
+                             posture.load_time)
 
 
 NO_TILT = (0.0, 0.0)

@@ -67,6 +67,24 @@ def test_ground_read_high_in_a_swings_landing_part_after_reading_none_is_a_step_
         assert contact[FRONT_LEFT] == believed and contact[1:].all()
 
 
+def test_ground_read_on_from_the_rising_part_into_the_landing_part_is_not_a_step_top():
+    """A sensor that read none at lift-off, then sticks on in the rising part (read as a riser
+    touched on the way up) and reads ground on as the swing comes down: never released for the
+    landing part, it is not believed in the air there and is marked after `fault_time`."""
+    contact_check = check()
+    feet = NEUTRAL.copy()
+    feet[FRONT_LEFT, 2] += 0.04
+    swinging = np.arange(6) == FRONT_LEFT
+    tick(contact_check, feet, ~swinging, swinging, np.zeros(6, bool))     # rising, reading none
+    tick(contact_check, feet, np.ones(6, bool), swinging, np.zeros(6, bool))   # stuck on
+    for _ in range(int(ContactLimits().fault_time / DT) - 2):
+        contact = tick(contact_check, feet, np.ones(6, bool), swinging, swinging)
+        assert not contact[FRONT_LEFT] and contact[1:].all()
+    for _ in range(3):
+        tick(contact_check, feet, np.ones(6, bool), swinging, swinging)
+    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
+
+
 def test_a_foot_held_up_counts_as_touching_whatever_its_sensor_says():
     contact_check = check()
     feet = NEUTRAL.copy()

@@ -368,3 +368,55 @@ def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_a
     measured[0] = (0.20, NEUTRAL[0, 1], ground + 0.035)               # lower: the edge stays
     _short_of_edges(parameters, s, touched, measured, stance)
     assert s["edge"][0, 1] == pytest.approx(ground + 0.04)
+
+
+LOADING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=0.3,
+                            load_time=0.06)
+
+
+def test_the_lifts_do_not_wait_for_the_load_time_on_even_ground():
+    """On even ground no landing is off the plane of the feet that stood before it: the lifts do
+    not wait (the next test: they do after one that is)."""
+    waits = {}
+    for name, period, speed, ground in (("tripod", 1.0, 0.1, NEUTRAL[:, 2]), ("ripple", 1.2, 0.06, NEUTRAL[:, 2])):
+        for adaptation in (LOADING, dataclasses.replace(LOADING, load_time=0.0)):
+            gait = GaitGenerator(name, NEUTRAL, period, 0.03, adaptation)
+            run_gait(gait, 3.0, Twist(vx=speed), ground)
+            waits[name, ground[0], adaptation.load_time] = gait.waited
+    assert waits["tripod", NEUTRAL[0, 2], 0.06] == waits["tripod", NEUTRAL[0, 2], 0.0]
+    assert waits["ripple", NEUTRAL[0, 2], 0.06] == waits["ripple", NEUTRAL[0, 2], 0.0]
+
+
+def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg_lifts():
+    """The front left foot lands on a block's corner (2 cm up) and slides off it 20 ms later, 3 cm down:
+    its contact is lost within the load time, so it reaches down again for the ground below while
+    the other tripod stands, and that one lifts only once the foot has held its new ground for
+    the load time."""
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, LOADING)
+    ground = NEUTRAL[:, 2].copy()
+    ground[0] += 0.02
+    landed = slid = None
+    heights, swinging = [], []
+    for k in range(1, 2800):
+        feet = gait.state.feet
+        contact = feet[:, 2] <= ground + 1e-9
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], ground)
+        was_swinging = gait.state.swinging[0]
+        gait.step(k * DT, DT, Twist(vx=0.1), contact, measured)
+        if landed is None and k * DT > 1.2 and was_swinging and not gait.state.swinging[0]:
+            landed = k
+        if landed is not None and slid is None and k == landed + 20:
+            ground[0] -= 0.03                   # off the corner
+            slid = k
+        heights.append(gait.state.feet[0, 2])
+        swinging.append(gait.state.swinging.copy())
+    heights, swinging = np.array(heights), np.array(swinging)
+    landed, slid = landed - 1, slid - 1                         # rows of the lists
+    assert swinging[slid + 1, 0]                                    # back in the air
+    relanded = slid + 1 + np.argmax(~swinging[slid + 1:, 0])
+    assert heights[relanded] == pytest.approx(ground[0], abs=2e-4)  # down on the ground below
+    others = swinging[:, [1, 3, 5]].any(axis=1)                 # the tripod it relieves
+    assert not others[landed:relanded].any()
+    first_lift = relanded + np.argmax(others[relanded:])
+    assert others[first_lift] and (first_lift - relanded) * DT >= 0.06 - 1.5 * DT
