@@ -495,11 +495,13 @@ def _off_the_stance_plane(feet, touched, swinging, neutral_height):
     """The feet among `touched` that landed more than UNEVEN_LANDING above or below the plane of
     the feet that stood before them: on a block, a step, a stair or past a ramp's gradient
     change, where a foot can stand on an edge's corner. On even ground none."""
-    stood = ~swinging & ~touched
-    plane_height, slope_x, slope_y = walk_plane(feet, stood, neutral_height)
     uneven = np.zeros(6, dtype=np.bool_)
+    stood = ~swinging & ~touched
+    if not touched.any() or stood.sum() < 3:
+        return uneven
+    plane_height, slope_x, slope_y = walk_plane(feet, stood, neutral_height)
     for leg in range(6):
-        if touched[leg] and stood.sum() >= 3:
+        if touched[leg]:
             ground = plane_height + slope_x * feet[leg, 0] + slope_y * feet[leg, 1]
             uneven[leg] = abs(feet[leg, 2] - ground) > UNEVEN_LANDING
     return uneven
