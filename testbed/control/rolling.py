@@ -1,0 +1,54 @@
+"""Planted feet that roll: the stance paths of spheres that turn with their tibias.
+
+A foot is a sphere of radius r on the tibia's end. As the body passes over a planted foot its tibia
+turns, and a sphere that does not slip rolls: its centre moves by dphi x (r n) over ground of normal
+n, dphi the tibia's turn. On a corner leg the tibia tilts in the leg's plane as the foot moves along
+the leg, about 2.5 mm of rolling per tripod stance at 0.1 m/s; the middle legs hardly roll. Stance
+paths that moved every planted centre as one rigid body would make the rigid contact's feet slip by
+that much, at the friction limit (docs/control.md, "Stance paths that roll").
+
+The law is the fusion filters' (`estimators.leg_odometry`): from the joint increments, th2 + th3
+tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which rolls nothing on level
+ground. Here it is applied to the commanded joints, tick by tick, with n the gait frame's up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.leg_odometry import _rolling_shift
+from testbed.model.kinematics import LegGeometry
+
+GAIT_UP = np.array([0.0, 0.0, 1.0])
+STILL_BODY = np.zeros(3)
+
+
+def sphere_rolling(joints: np.ndarray, previous: np.ndarray, geometry: LegGeometry, radius: float) -> np.ndarray:
+    """(6, 3) m, how far each foot's sphere centre moves, rolling without slip on ground whose
+    normal is the gait frame's up, as its leg's joints go from `previous` to `joints` (18,) rad."""
+    return _rolling_shift(np.asarray(joints, dtype=float), np.asarray(previous, dtype=float),
+                          geometry.base_angle, STILL_BODY, GAIT_UP, radius)
+
+
+class StanceRolling:
+    """Moves each planted foot's target, tick by tick, by its sphere's rolling since touch-down.
+
+    The turn between two ticks is that of the commanded joints (the servos lag every leg alike);
+    a foot counts from the second tick it is planted, so the touch-down's jump from the swing's
+    last target to the landed foot rolls nothing. The body's tilt against the gait frame (the
+    posture correction, a few degrees) turns each shift by that angle, which is neglected."""
+
+    def __init__(self, geometry: LegGeometry, radius: float, joints: np.ndarray):
+        self.geometry = geometry
+        self.radius = radius
+        self.previous = np.array(joints, dtype=float)
+        self.planted_before = np.zeros(6, dtype=bool)
+
+    def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray) -> None:
+        """Move the rows of `feet` (6, 3; gait frame, in place) planted now and at the last call by
+        their spheres' rolling from the last call's `joints` to these."""
+        both = planted & self.planted_before
+        if both.any():
+            feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius)[both]
+        self.previous[:] = joints
+        self.planted_before[:] = planted
