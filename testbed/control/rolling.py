@@ -9,7 +9,10 @@ that much, at the friction limit (docs/control.md, "Stance paths that roll").
 
 The law is the fusion filters' (`estimators.leg_odometry`): from the joint increments, th2 + th3
 tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which rolls nothing on level
-ground. Here it is applied to the commanded joints, tick by tick, with n the gait frame's up.
+ground. Here it is applied to the encoders' joint angles, sample by sample, with n the gait frame's
+up: the turn the tibia made. The commanded joints' turn is not it where a leg cannot follow its
+command (a foot held by rigid ground while the servos push it), and a target rolled by it leaves
+an error that the servos hold against the ground for the rest of the stance.
 """
 
 from __future__ import annotations
@@ -31,12 +34,12 @@ def sphere_rolling(joints: np.ndarray, previous: np.ndarray, geometry: LegGeomet
 
 
 class StanceRolling:
-    """Moves each planted foot's target, tick by tick, by its sphere's rolling since touch-down.
+    """Moves each planted foot's target, encoder sample by encoder sample, by its sphere's
+    rolling since touch-down.
 
-    The turn between two ticks is that of the commanded joints (the servos lag every leg alike);
-    a foot counts from the second tick it is planted, so the touch-down's jump from the swing's
-    last target to the landed foot rolls nothing. The body's tilt against the gait frame (the
-    posture correction, a few degrees) turns each shift by that angle, which is neglected."""
+    A foot counts from the second sample it is planted at, so the landing itself rolls nothing.
+    The body's tilt against the gait frame (the posture correction, a few degrees) turns each
+    shift by that angle, which is neglected."""
 
     def __init__(self, geometry: LegGeometry, radius: float, joints: np.ndarray):
         self.geometry = geometry
@@ -46,7 +49,7 @@ class StanceRolling:
 
     def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray) -> None:
         """Move the rows of `feet` (6, 3; gait frame, in place) planted now and at the last call by
-        their spheres' rolling from the last call's `joints` to these."""
+        their spheres' rolling from the last call's `joints` (18,) rad to these."""
         both = planted & self.planted_before
         if both.any():
             feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius)[both]
