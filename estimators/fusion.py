@@ -17,8 +17,8 @@ by s_i = dphi x (r n) (estimators/leg_odometry.py). Both simulated contacts roll
 stance paths move each planted centre by its own sphere's rolling (testbed/control/rolling.py), and
 the compliant contact's friction spring stretches with the slip of the sphere's material contact
 point, so a sphere that rolls feels no spring (testbed/world/contact.py). Measured from truth on
-flat 30 s tripod walks (seeds 0-2), the corner feet move 0.97-1.04 of the modelled rolling per
-stance on both contacts, the rear ones 0.82-0.85 (docs/estimators.md, "Position drift on DART
+flat 30 s tripod walks (seeds 0-2), the front corner feet move 0.97-1.05 of the modelled rolling
+per stance on both contacts, the rear ones 0.80-0.90 (docs/estimators.md, "Position drift on DART
 contact"). The filter moves each tracked foot by k s_i with the rolling fraction
 k = ROLLING_FRACTION = 1, and adds (ROLLING_STD s_i)^2 per axis to the foot's variance. It does not
 know which contact model runs. (k as a state does not work: the encoder noise enters both the
@@ -86,7 +86,7 @@ FEET = slice(FOOT0, POSITION0)
 POSITION = slice(POSITION0, POSITION0 + 3)
 # The rolling fraction k: both contacts roll the planted spheres (the pilot's stance paths roll
 # them, the compliant contact's friction spring follows the material point), so k = 1; its spread:
-# the rear corner feet move 0.82-0.85 of the modelled rolling per stance, the others 0.97-1.04
+# the rear corner feet move 0.80-0.90 of the modelled rolling per stance, the front ones 0.97-1.05
 # (flat 30 s tripod walks, seeds 0-2, both contacts, from truth).
 ROLLING_FRACTION, ROLLING_STD = 1.0, 0.2
 # The velocity's scale error per unit error of k: on those walks the final error along the walk
