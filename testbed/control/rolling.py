@@ -10,9 +10,8 @@ that much, at the friction limit (docs/control.md, "Stance paths that roll").
 The law is the fusion filters' (`estimators.leg_odometry`): from the joint increments, th2 + th3
 tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which rolls nothing on level
 ground. Here it is applied to the encoders' joint angles, sample by sample, with n the gait frame's
-up: the turn the tibia made. The commanded joints' turn is not it where a leg cannot follow its
-command (a foot held by rigid ground while the servos push it), and a target rolled by it leaves
-an error that the servos hold against the ground for the rest of the stance.
+up: the turn the tibia made. Rolled by the commanded joints' turn instead, the rigid contact's feet
+were squeezed inwards by 2.6-5.4 N from their landing to their lift-off (docs/control.md).
 """
 
 from __future__ import annotations
