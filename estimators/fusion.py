@@ -738,6 +738,15 @@ class FusionEstimator(Estimator):
                                        self.params.foot_load_time_constant)
         self._loads_time = sample.t
 
+    def _ground_normal_in_body(self) -> tuple[float, float, float]:
+        """The terrain plane's unit normal in the body frame (gravity's up before the first plane)."""
+        if self.terrain.x is None:
+            return rot.up_in_body(self.state.q)
+        a, b = self.terrain.x[0], self.terrain.x[1]
+        normal = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
+        x, y, z = rot.to_matrix(self.state.q).T @ normal
+        return (float(x), float(y), float(z))
+
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
             return
@@ -745,7 +754,7 @@ class FusionEstimator(Estimator):
         rolling = None
         if self.params.rolling_feet:
             self._rolled[:] = 0.0
-            rolling = (self._rolled, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
+            rolling = (self._rolled, self._body_turn, self._ground_normal_in_body(), self.foot_radius)
         reading = self.legs.read(sample.positions, rolling)
         if rolling is not None:
             self._body_turn[:] = 0.0

@@ -25,7 +25,7 @@ from testbed.control.posture import (POSTURE_LAWS, PostureCorrection, PostureMea
                                      checked_correction, estimated_height, kinematic_height, levelling_rotation,
                                      tilted_targets, untilted_positions)
 from testbed.control.command import Command
-from testbed.control.rolling import StanceRolling
+from testbed.control.rolling import StanceRolling, ground_normal
 from testbed.model.errors import PluginFailure
 from testbed.control.startup import CalibrationPoses
 
@@ -285,8 +285,9 @@ class Pilot(Controller):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
                 # The planted feet's targets roll with their spheres (testbed/control/rolling.py).
-                walking = self.walking_gait and sample.t >= self.startup_time
-                self.rolling.roll(self.gait.state.feet, self.encoder_positions, ~self.gait.state.swinging & walking)
+                planted = ~self.gait.state.swinging & (self.walking_gait and sample.t >= self.startup_time)
+                self.rolling.roll(self.gait.state.feet, self.encoder_positions, planted,
+                                  ground_normal(self.encoder_feet, planted))
                 self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(self.encoder_positions, stance, heading.yaw)

@@ -9,9 +9,11 @@ that much, at the friction limit (docs/control.md, "Stance paths that roll").
 
 The law is the fusion filters' (`estimators.leg_odometry`): from the joint increments, th2 + th3
 tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which rolls nothing on level
-ground. Here it is applied to the encoders' joint angles, sample by sample, with n the gait frame's
-up: the turn the tibia made. Rolled by the commanded joints' turn instead, the rigid contact's feet
-were squeezed inwards by 2.6-5.4 N from their landing to their lift-off (docs/control.md).
+ground (on a slope, where the ground's normal is not z_b, it does). Here it is applied to the
+encoders' joint angles, sample by sample, with n the normal of the planted feet's plane: the turn
+the tibia made. The commanded joints' turn is not it where a leg cannot follow its
+command (a foot held by rigid ground while the servos push it), and a target rolled by it leaves
+an error that the servos hold against the ground for the rest of the stance.
 """
 
 from __future__ import annotations
@@ -19,17 +21,26 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.leg_odometry import _rolling_shift
+from testbed.control.gait import walk_plane
 from testbed.model.kinematics import LegGeometry
 
-GAIT_UP = np.array([0.0, 0.0, 1.0])
 STILL_BODY = np.zeros(3)
 
 
-def sphere_rolling(joints: np.ndarray, previous: np.ndarray, geometry: LegGeometry, radius: float) -> np.ndarray:
-    """(6, 3) m, how far each foot's sphere centre moves, rolling without slip on ground whose
-    normal is the gait frame's up, as its leg's joints go from `previous` to `joints` (18,) rad."""
+def sphere_rolling(joints: np.ndarray, previous: np.ndarray, geometry: LegGeometry, radius: float,
+                   normal: np.ndarray) -> np.ndarray:
+    """(6, 3) m, how far each foot's sphere centre moves, rolling without slip on ground of unit
+    `normal` (body frame), as its leg's joints go from `previous` to `joints` (18,) rad."""
     return _rolling_shift(np.asarray(joints, dtype=float), np.asarray(previous, dtype=float),
-                          geometry.base_angle, STILL_BODY, GAIT_UP, radius)
+                          geometry.base_angle, STILL_BODY, normal, radius)
+
+
+def ground_normal(feet: np.ndarray, planted: np.ndarray) -> np.ndarray:
+    """The unit normal of the least-squares plane of the `planted` rows of `feet` (6, 3; body
+    frame), z_b with fewer than three."""
+    _, slope_x, slope_y = walk_plane(feet, planted, 0.0)
+    normal = np.array([-slope_x, -slope_y, 1.0])
+    return normal / np.linalg.norm(normal)
 
 
 class StanceRolling:
@@ -46,11 +57,12 @@ class StanceRolling:
         self.previous = np.array(joints, dtype=float)
         self.planted_before = np.zeros(6, dtype=bool)
 
-    def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray) -> None:
+    def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray, normal: np.ndarray) -> None:
         """Move the rows of `feet` (6, 3; gait frame, in place) planted now and at the last call by
-        their spheres' rolling from the last call's `joints` (18,) rad to these."""
+        their spheres' rolling from the last call's `joints` (18,) rad to these, on ground of unit
+        `normal`."""
         both = planted & self.planted_before
         if both.any():
-            feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius)[both]
+            feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius, normal)[both]
         self.previous[:] = joints
         self.planted_before[:] = planted
