@@ -738,15 +738,6 @@ class FusionEstimator(Estimator):
                                        self.params.foot_load_time_constant)
         self._loads_time = sample.t
 
-    def _ground_normal_in_body(self) -> tuple[float, float, float]:
-        """The terrain plane's unit normal in the body frame (gravity's up before the first plane)."""
-        if self.terrain.x is None:
-            return rot.up_in_body(self.state.q)
-        a, b = self.terrain.x[0], self.terrain.x[1]
-        normal = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
-        x, y, z = rot.to_matrix(self.state.q).T @ normal
-        return (float(x), float(y), float(z))
-
     def _update_encoders(self, sample: EncoderSample) -> None:
         if self.state is None:
             return
@@ -754,7 +745,8 @@ class FusionEstimator(Estimator):
         rolling = None
         if self.params.rolling_feet:
             self._rolled[:] = 0.0
-            rolling = (self._rolled, self._body_turn, self._ground_normal_in_body(), self.foot_radius)
+            rolling = (self._rolled, self._body_turn, ground_normal_in_body(self.terrain.x, self.state.q),
+                       self.foot_radius)
         reading = self.legs.read(sample.positions, rolling)
         if rolling is not None:
             self._body_turn[:] = 0.0
@@ -1024,6 +1016,18 @@ def pose_covariances(P: np.ndarray, q: rot.Quaternion, velocity: np.ndarray, rat
     velocity_cov = (rot.matmul3(rot.matmul3(J_v, vel), J_v.T) + mixed + mixed.T
                     + rot.matmul3(rot.matmul3(J_theta, theta), J_theta.T))
     return position_cov, velocity_cov
+
+
+def ground_normal_in_body(terrain: np.ndarray | None, q: rot.Quaternion) -> tuple[float, float, float]:
+    """The unit normal of the terrain plane z = a x + b y + c (`terrain` = (a, b, height), levelled
+    axes; estimators/terrain.py) in the body frame of attitude q; gravity's up before any plane.
+    The planted spheres roll on it (estimators/leg_odometry.py)."""
+    if terrain is None:
+        return rot.up_in_body(q)
+    a, b = float(terrain[0]), float(terrain[1])
+    scale = 1.0 / math.sqrt(1.0 + a * a + b * b)
+    R = rot.to_matrix(q)            # R^T (-a, -b, 1): the world normal's components on the body axes
+    return tuple(float((R[2, i] - a * R[0, i] - b * R[1, i]) * scale) for i in range(3))
 
 
 # Compiled: it runs at every encoder sample.

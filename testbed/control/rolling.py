@@ -7,22 +7,20 @@ the leg, about 2.5 mm of rolling per tripod stance at 0.1 m/s; the middle legs h
 paths that moved every planted centre as one rigid body would make the rigid contact's feet slip by
 that much, at the friction limit (docs/control.md, "Stance paths that roll").
 
-The law is the fusion filters' (`estimators.leg_odometry`): from the joint increments, th2 + th3
-tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which rolls nothing on level
-ground (on a slope, where the ground's normal is not z_b, it does). Here it is applied to the
-encoders' joint angles, sample by sample, with n the normal of the planted feet's plane: the turn
-the tibia made. The commanded joints' turn is not it where a leg cannot follow its
-command (a foot held by rigid ground while the servos push it), and a target rolled by it leaves
-an error that the servos hold against the ground for the rest of the stance.
+The law is `testbed.model.kinematics.sphere_rolling_shift`, the fusion filters' too: from the joint
+increments, th2 + th3 tilt the tibia in its leg's vertical plane, th1 turns it about z_b, which
+rolls nothing on level ground (on a slope, where the ground's normal is not z_b, it does). Here it
+is applied to the encoders' joint angles, sample by sample, with n the normal of the planted feet's
+plane: the turn the tibia made. Rolled by the commanded joints' turn instead, the rigid contact's
+feet were squeezed inwards by 2.6-5.4 N from their landing to their lift-off (docs/control.md).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from estimators.leg_odometry import _rolling_shift
 from testbed.control.gait import walk_plane
-from testbed.model.kinematics import LegGeometry
+from testbed.model.kinematics import LegGeometry, sphere_rolling_shift
 
 STILL_BODY = np.zeros(3)
 
@@ -31,8 +29,8 @@ def sphere_rolling(joints: np.ndarray, previous: np.ndarray, geometry: LegGeomet
                    normal: np.ndarray) -> np.ndarray:
     """(6, 3) m, how far each foot's sphere centre moves, rolling without slip on ground of unit
     `normal` (body frame), as its leg's joints go from `previous` to `joints` (18,) rad."""
-    return _rolling_shift(np.asarray(joints, dtype=float), np.asarray(previous, dtype=float),
-                          geometry.base_angle, STILL_BODY, normal, radius)
+    return sphere_rolling_shift(np.asarray(joints, dtype=float), np.asarray(previous, dtype=float),
+                                geometry.base_angle, STILL_BODY, normal, radius)
 
 
 def ground_normal(feet: np.ndarray, planted: np.ndarray) -> np.ndarray:
