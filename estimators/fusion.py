@@ -13,7 +13,8 @@ reads them; the feet correct them only through their correlations with the veloc
 and the gyro bias, and their variances grow with the distance walked and the time.
 
 Rolling feet: a planted foot sphere whose contact sticks rolls as its tibia turns, its centre moving
-by s_i = dphi x (r n) (estimators/leg_odometry.py). Both simulated contacts roll it: the pilot's
+by s_i = dphi x (r n), n the ground's normal: the filter takes its terrain plane's
+(`ground_normal_in_body`; testbed.model.kinematics.sphere_rolling_shift). Both simulated contacts roll it: the pilot's
 stance paths move each planted centre by its own sphere's rolling (testbed/control/rolling.py), and
 the compliant contact's friction spring stretches with the slip of the sphere's material contact
 point, so a sphere that rolls feels no spring (testbed/world/contact.py). Measured from truth on
