@@ -14,8 +14,8 @@ and the gyro bias, and their variances grow with the distance walked and the tim
 
 Rolling feet: a planted foot sphere whose contact sticks rolls as its tibia turns, its centre moving
 by s_i = dphi x (r n), n the ground's normal: the filter takes its terrain plane's
-(`ground_normal_in_body`; testbed.model.kinematics.sphere_rolling_shift). Both simulated contacts roll it: the pilot's
-stance paths move each planted centre by its own sphere's rolling (testbed/control/rolling.py), and
+(`ground_normal_in_body`; testbed.model.kinematics.sphere_rolling_shift). Both simulated
+contacts roll it: the pilot's stance paths move each planted centre by its own sphere's rolling (testbed/control/rolling.py), and
 the compliant contact's friction spring stretches with the slip of the sphere's material contact
 point, so a sphere that rolls feels no spring (testbed/world/contact.py). Measured from truth on
 flat 30 s tripod walks (seeds 0-2), the front corner feet move 0.97-1.05 of the modelled rolling
