@@ -13,17 +13,17 @@ reads them; the feet correct them only through their correlations with the veloc
 and the gyro bias, and their variances grow with the distance walked and the time.
 
 Rolling feet: a planted foot sphere whose contact sticks rolls as its tibia turns, its centre moving
-by s_i = dphi x (r n) (estimators/leg_odometry.py); a contact that anchors the point under the
-centre keeps the centre still. Which one the ground does is not known beforehand, and either
-assumption, wrong, biases the velocity by 2 to 3 % of the distance walked. (Measured from truth,
-neither contact rolls much: DART's corner feet move 0.20-0.25 of the modelled rolling along
-their leg, and slide across it at the friction limit; the compliant feet stay. docs/estimators.md,
-"Position drift on DART contact".) The filter moves each tracked foot by k s_i with a fixed rolling
-fraction k = ROLLING_FRACTION, and adds the rest, (ROLLING_STD s_i)^2 per axis, to the foot's
-variance. (k as a state does not work: the feet's innovations pull it to about 0 on both
-contacts, through the start-up poses and while walking, although k = 1 walks straightest on DART:
-the encoder noise enters both the rolling, through the joint increments, and the kinematics,
-which biases k down.)
+by s_i = dphi x (r n), n the ground's normal: the filter takes its terrain plane's
+(`ground_normal_in_body`; testbed.model.kinematics.sphere_rolling_shift). Both simulated
+contacts roll it: the pilot's stance paths move each planted centre by its own sphere's rolling (testbed/control/rolling.py), and
+the compliant contact's friction spring stretches with the slip of the sphere's material contact
+point, so a sphere that rolls feels no spring (testbed/world/contact.py). Measured from truth on
+flat 30 s tripod walks (seeds 0-2), the front corner feet move 0.97-1.05 of the modelled rolling
+per stance on both contacts, the rear ones 0.80-0.90 (docs/estimators.md, "Position drift on DART
+contact"). The filter moves each tracked foot by k s_i with the rolling fraction
+k = ROLLING_FRACTION = 1, and adds (ROLLING_STD s_i)^2 per axis to the foot's variance. It does not
+know which contact model runs. (k as a state does not work: the encoder noise enters both the
+rolling, through the joint increments, and the kinematics, which biases an estimated k down.)
 
 The IMU drives the prediction (strapdown: the specific force is an input, not a measurement),
 summed between filter steps by `preintegration` (Forster et al. 2017). Over an interval dt from
@@ -85,16 +85,18 @@ ACCEL_CROSS = slice(12, 14)    # the accelerometer z axis's sensitivity to the x
 ACCEL_ERRORS = slice(9, 14)    # offset and cross-axis terms: the consider block after the start-up
 FEET = slice(FOOT0, POSITION0)
 POSITION = slice(POSITION0, POSITION0 + 3)
-# The rolling fraction k between an anchored (0) and a rolling (1) contact, and its uncertainty:
-# on a 30 s flat walk k = 0 drifts 0.25 % (compliant) and 2.2 % (DART), k = 1 2.9 % and 0.6 %.
-ROLLING_FRACTION, ROLLING_STD = 0.25, 0.5
-# The velocity's error when the rolling assumption is wrong, per unit of velocity (either extreme,
-# wrong, biases it by 2 to 3 % of the distance walked): with k known to ROLLING_STD, the velocity
-# carries a scale error e of std ROLLING_STD * ROLLING_SHARE, the same over the walk, so the
-# position's error is e times the displacement since the start. The filter's white noises cannot
-# grow that way; the position is a leaf of the error state (no measurement reads it, nothing
-# depends on it), so the term e's covariance adds to the reported position covariance alone.
-ROLLING_SHARE = 0.025
+# The rolling fraction k: both contacts roll the planted spheres (the pilot's stance paths roll
+# them, the compliant contact's friction spring follows the material point), so k = 1; its spread:
+# the rear corner feet move 0.80-0.90 of the modelled rolling per stance, the front ones 0.97-1.05
+# (flat 30 s tripod walks, seeds 0-2, both contacts, from truth).
+ROLLING_FRACTION, ROLLING_STD = 1.0, 0.2
+# The velocity's scale error per unit error of k: on those walks the final error along the walk
+# moves by 2.5 % (compliant) and 2.8 % (DART) of the distance from k = 0 to k = 1. With k known to
+# ROLLING_STD, the velocity carries a scale error e of std ROLLING_STD * ROLLING_SHARE, the same over
+# the walk, so the position's error is e times the displacement since the start. The filter's white
+# noises cannot grow that way; the position is a leaf of the error state (no measurement reads it,
+# nothing depends on it), so the term e's covariance adds to the reported position covariance alone.
+ROLLING_SHARE = 0.027
 INITIAL_POSITION_STD = 1e-3    # m: the start pose defines the frame; the body settles on its feet by a millimetre
 
 VELOCITY_RANDOM_WALK = 1e-3    # m/s/sqrt(s): unmodelled accelerometer errors (scale, cross-axis, vibration)
@@ -744,7 +746,8 @@ class FusionEstimator(Estimator):
         rolling = None
         if self.params.rolling_feet:
             self._rolled[:] = 0.0
-            rolling = (self._rolled, self._body_turn, rot.up_in_body(self.state.q), self.foot_radius)
+            rolling = (self._rolled, self._body_turn, ground_normal_in_body(self.terrain.x, self.state.q),
+                       self.foot_radius)
         reading = self.legs.read(sample.positions, rolling)
         if rolling is not None:
             self._body_turn[:] = 0.0
@@ -1014,6 +1017,18 @@ def pose_covariances(P: np.ndarray, q: rot.Quaternion, velocity: np.ndarray, rat
     velocity_cov = (rot.matmul3(rot.matmul3(J_v, vel), J_v.T) + mixed + mixed.T
                     + rot.matmul3(rot.matmul3(J_theta, theta), J_theta.T))
     return position_cov, velocity_cov
+
+
+def ground_normal_in_body(terrain: np.ndarray | None, q: rot.Quaternion) -> tuple[float, float, float]:
+    """The unit normal of the terrain plane z = a x + b y + c (`terrain` = (a, b, height), levelled
+    axes; estimators/terrain.py) in the body frame of attitude q; gravity's up before any plane.
+    The planted spheres roll on it (estimators/leg_odometry.py)."""
+    if terrain is None:
+        return rot.up_in_body(q)
+    a, b = float(terrain[0]), float(terrain[1])
+    scale = 1.0 / math.sqrt(1.0 + a * a + b * b)
+    R = rot.to_matrix(q)            # R^T (-a, -b, 1): the world normal's components on the body axes
+    return tuple(float((R[2, i] - a * R[0, i] - b * R[1, i]) * scale) for i in range(3))
 
 
 # Compiled: it runs at every encoder sample.

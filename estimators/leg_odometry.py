@@ -14,13 +14,12 @@ the first encoder sample after it was planted until it is not.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from testbed.model.kinematics import LegGeometry, world_feet_of
+from testbed.model.kinematics import LegGeometry, sphere_rolling_shift, world_feet_of
 
 NUM_LEGS = 6
 _IDENTITY, _ORIGIN = np.eye(3), np.zeros(3)
@@ -109,7 +108,7 @@ def _read(positions, record, rolling, filter_feet, body_turn, up, radius):
     t = record[0]
     if rolling:
         if t.have_previous:
-            shift = _rolling_shift(positions, t.previous, t.base_angle, body_turn, up, radius)
+            shift = sphere_rolling_shift(positions, t.previous, t.base_angle, body_turn, up, radius)
             for leg in range(NUM_LEGS):
                 if t.tracked[leg]:
                     filter_feet[leg] += shift[leg]
@@ -142,23 +141,3 @@ def _add_contacts(contact, normal_forces, min_force, planted, tracked):
         tracked[leg] = tracked[leg] and planted[leg]
 
 
-# Compiled: it runs at every encoder sample.
-@njit(cache=True)
-def _rolling_shift(positions, previous, base_angle, body_turn, up, radius):
-    shift = np.zeros((NUM_LEGS, 3))
-    for leg in range(NUM_LEGS):
-        d1 = positions[3 * leg] - previous[3 * leg]
-        d23 = positions[3 * leg + 1] - previous[3 * leg + 1] + positions[3 * leg + 2] - previous[3 * leg + 2]
-        if not (np.isfinite(d1) and np.isfinite(d23)):
-            continue
-        # th1 turns the leg about z_b; th2 + th3 tilt the tibia in the leg's vertical plane, about
-        # u x z_b, u = (cos heading, sin heading, 0) (eq. 2: the foot rises with th2 + th3).
-        heading = base_angle[leg] + positions[3 * leg]
-        wx = body_turn[0] + d23 * math.sin(heading)
-        wy = body_turn[1] - d23 * math.cos(heading)
-        wz = body_turn[2] + d1
-        nx, ny, nz = radius * up[0], radius * up[1], radius * up[2]
-        shift[leg, 0] = wy * nz - wz * ny
-        shift[leg, 1] = wz * nx - wx * nz
-        shift[leg, 2] = wx * ny - wy * nx
-    return shift

@@ -10,10 +10,10 @@ between two samples one stance foot is enough to fix the body's shift.
 
 Which point of a foot stays put: the encoders give the centre of the foot sphere. A sphere that
 sticks to the ground rolls when its tibia pitches, and then its centre moves by the foot radius
-times the pitch change (a rigid contact such as DART's); a contact that anchors the point under the
-centre keeps the centre still (the compliant model). The odometry cannot tell which, so it weighs
-each foot by how far its centre may have rolled since it was planted: feet whose tibia keeps its
-pitch (the middle legs walking straight) fix the body's motion, whatever the contact does.
+times the pitch change, on both simulated contacts (docs/estimators.md, "Position drift on DART
+contact"). The odometry does not model the rolling; it weighs each foot by how far its centre may
+have rolled since it was planted: feet whose tibia keeps its pitch (the middle legs walking
+straight) fix the body's motion.
 
 Gaps: between two samples that share no stance foot the legs measure nothing (the tripods change
 over, one lifting before the other carries weight, or a landing foot bounces), yet the body moves

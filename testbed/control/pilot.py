@@ -1,7 +1,8 @@
 """The robot's onboard software: everything downstream of the sensors, nothing that reads truth.
 
 Per tick: sensor samples -> estimator and leg odometry -> body twist (fixed, or walking to a
-target) -> gait generator (foot targets in the body frame) -> inverse kinematics -> joint targets.
+target) -> gait generator (foot targets in the body frame) -> inverse kinematics -> joint targets;
+the planted feet's targets then roll with their spheres (`rolling.StanceRolling`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from testbed.control.posture import (POSTURE_LAWS, PostureCorrection, PostureMea
                                      checked_correction, estimated_height, kinematic_height, levelling_rotation,
                                      tilted_targets, untilted_positions)
 from testbed.control.command import Command
+from testbed.control.rolling import StanceRolling, ground_normal
 from testbed.model.errors import PluginFailure
 from testbed.control.startup import CalibrationPoses
 
@@ -110,6 +112,7 @@ class Pilot(Controller):
         self.start_rise = self._start_rise() if self.use_posture else 0.0
         neutral[:, 2] -= self.start_rise
         self.gait = GaitGenerator(name, neutral, period, swing_height, adaptation, lead=lead)
+        self.rolling = StanceRolling(self.geometry, self.config.robot.foot_radius, self.joint_targets)
         self.startup_crouch = self._startup_crouch() if self.max_crouch > 0.0 else 0.0
 
     def _startup_crouch(self) -> float:
@@ -281,6 +284,10 @@ class Pilot(Controller):
             elif isinstance(sample, EncoderSample):
                 self.encoder_positions = np.asarray(sample.positions, dtype=float)
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
+                # The planted feet's targets roll with their spheres (testbed/control/rolling.py).
+                planted = ~self.gait.state.swinging & (self.walking_gait and sample.t >= self.startup_time)
+                self.rolling.roll(self.gait.state.feet, self.encoder_positions, planted,
+                                  ground_normal(self.encoder_feet, planted))
                 self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(self.encoder_positions, stance, heading.yaw)

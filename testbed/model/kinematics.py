@@ -348,6 +348,32 @@ def _within(angle, low, high) -> bool:
     return low - LIMIT_TOLERANCE <= angle <= high + LIMIT_TOLERANCE
 
 
+# Compiled: the fusion filters and the pilot call it at every encoder sample.
+@njit(cache=True)
+def sphere_rolling_shift(positions, previous, base_angle, body_turn, up, radius):
+    """(6, 3) m, how far each foot sphere's centre moves rolling without slip on ground of unit
+    normal `up` (body frame) as the joints go from `previous` to `positions` (18,) rad and the body
+    turns by the rotation vector `body_turn` (body frame): dphi x (r n), dphi the tibia's turn.
+    `base_angle` (6,) rad: each leg's mounting angle; `radius` m: the foot sphere's."""
+    shift = np.zeros((6, 3))
+    for leg in range(6):
+        d1 = positions[3 * leg] - previous[3 * leg]
+        d23 = positions[3 * leg + 1] - previous[3 * leg + 1] + positions[3 * leg + 2] - previous[3 * leg + 2]
+        if not (np.isfinite(d1) and np.isfinite(d23)):
+            continue
+        # th1 turns the leg about z_b; th2 + th3 tilt the tibia in the leg's vertical plane, about
+        # u x z_b, u = (cos heading, sin heading, 0) (eq. 2: the foot rises with th2 + th3).
+        heading = base_angle[leg] + positions[3 * leg]
+        wx = body_turn[0] + d23 * math.sin(heading)
+        wy = body_turn[1] - d23 * math.cos(heading)
+        wz = body_turn[2] + d1
+        nx, ny, nz = radius * up[0], radius * up[1], radius * up[2]
+        shift[leg, 0] = wy * nz - wz * ny
+        shift[leg, 1] = wz * nx - wx * nz
+        shift[leg, 2] = wx * ny - wy * nx
+    return shift
+
+
 def nominal_stance(geom: LegGeometry, stance_radius: float, stance_height: float, foot_radius: float) -> np.ndarray:
     """(6, 3) foot-centre targets of the nominal stance: each foot `stance_radius` out along x_0i,
     the body origin `stance_height` above flat ground."""

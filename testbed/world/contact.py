@@ -13,7 +13,11 @@ Tangential force: Coulomb friction, proportional to F_n and opposite to the slip
 sliding. It is regularised with a stick-slip spring (an elasto-plastic bristle, as in Dahl's and
 LuGre's models) rather than by a viscous slope around zero slip: a viscous regularisation steep
 enough to hold a robot on a slope for seconds is unstable at a 1 ms explicit step, while the
-spring holds it exactly and only the force cap mu * F_n decides when the foot slides.
+spring holds it exactly and only the force cap mu * F_n decides when the foot slides. The spring's
+stretch is the integral of the slip of the sphere's material contact point, v + w x a (a = the
+contact point less the centre), not of the geometric point under the centre: its ground anchor
+moves by -(w x a) dt each step, so a sphere that rolls without slipping (v = w x r n) feels no
+spring, and one that spins in place with its centre held does. The foot rolls as DART's does.
 
 `dart` -- DART's own rigid contact: its collision detection and boxed LCP solver.
 
@@ -101,13 +105,15 @@ def make_contact_model(spec: str, config, terrain: Terrain) -> ContactModel:
 
 # ---------------------------------------------------------------- the hard-finger law
 def hard_finger(feet: WorldFeet, depth: np.ndarray, normals: np.ndarray, anchors: np.ndarray,
-                config: ContactConfig, foot_radius: float) -> tuple[FootContacts, np.ndarray]:
+                config: ContactConfig, foot_radius: float, time_step: float) -> tuple[FootContacts, np.ndarray]:
     """The contact forces on feet moving as `feet`, indented `depth` (N,) m into the terrain along
     the unit `normals` (N, 3) (Terrain.sphere_contacts); updates the sticking `anchors` (N, 3, NaN
-    rows: no anchor) in place. Also the contact points in the tibias' frames, where the forces act."""
+    rows: no anchor) in place, rolling them with the spheres over `time_step` (s). Also the contact
+    points in the tibias' frames, where the forces act."""
     touching = depth > 0.0
     points = feet.centers - foot_radius * normals
-    velocity = feet.velocities + np.cross(feet.spins, points - feet.centers)      # of the contact point
+    rolling = np.cross(feet.spins, points - feet.centers)       # the material point's speed relative to the centre
+    velocity = feet.velocities + rolling                        # of the material contact point
     normal_speed = np.sum(velocity * normals, axis=1)
     damping_factor = np.clip(config.damping * -normal_speed, -1.0, 1.0)
     elastic = config.stiffness * np.where(touching, depth, 0.0) ** config.exponent
@@ -116,6 +122,8 @@ def hard_finger(feet: WorldFeet, depth: np.ndarray, normals: np.ndarray, anchors
     anchors[~touching] = np.nan
     new = touching & np.isnan(anchors[:, 0])
     anchors[new] = points[new]
+    # The anchor rolls with the sphere: the stretch grows by the material point's slip only.
+    anchors[touching & ~new] -= rolling[touching & ~new] * time_step
     stretch = points - anchors
     tangential_stretch = stretch - np.sum(stretch * normals, axis=1)[:, None] * normals
     slip = velocity - normal_speed[:, None] * normals
@@ -145,7 +153,8 @@ class ContactArrays(NamedTuple):
 def hard_finger_into(feet, law, boxes, candidates, anchors, out):
     """`hard_finger` on the terrain's `boxes` (BOX records; each foot's `candidates` boxes), compiled:
     `feet` a WorldFeet, `law` a COMPLIANT record, `out` a ContactArrays (normals zero where a foot
-    does not touch); updates `anchors` in place. Returns the touching feet as bits (leg i: 1 << i)."""
+    does not touch); updates `anchors` in place (rolled with the spheres over `law.time_step`).
+    Returns the touching feet as bits (leg i: 1 << i)."""
     radius = law.radius
     depth, normals = sphere_contact_arrays(feet.centers, radius, boxes, candidates)
     centers, spins = feet.centers, feet.spins
@@ -164,15 +173,19 @@ def hard_finger_into(feet, law, boxes, candidates, anchors, out):
         # Scalars rather than (3,) arrays: each array is a heap allocation in compiled code.
         arm = (out.points[leg, 0] - centers[leg, 0], out.points[leg, 1] - centers[leg, 1],
                out.points[leg, 2] - centers[leg, 2])
-        velocity = (feet.velocities[leg, 0] + spins[leg, 1] * arm[2] - spins[leg, 2] * arm[1],
-                    feet.velocities[leg, 1] + spins[leg, 2] * arm[0] - spins[leg, 0] * arm[2],
-                    feet.velocities[leg, 2] + spins[leg, 0] * arm[1] - spins[leg, 1] * arm[0])
+        rolling = (spins[leg, 1] * arm[2] - spins[leg, 2] * arm[1], spins[leg, 2] * arm[0] - spins[leg, 0] * arm[2],
+                   spins[leg, 0] * arm[1] - spins[leg, 1] * arm[0])
+        velocity = (feet.velocities[leg, 0] + rolling[0], feet.velocities[leg, 1] + rolling[1],
+                    feet.velocities[leg, 2] + rolling[2])
         normal_speed = velocity[0] * normal[0] + velocity[1] * normal[1] + velocity[2] * normal[2]
         damping_factor = min(max(law.damping * -normal_speed, -1.0), 1.0)
         normal_force = max(law.stiffness * depth[leg] ** law.exponent * (1.0 + damping_factor), 0.0)
         out.normal_forces[leg] = normal_force
         if np.isnan(anchors[leg, 0]):
             anchors[leg] = out.points[leg]
+        else:
+            for i in range(3):
+                anchors[leg, i] -= rolling[i] * law.time_step
         stretch = (out.points[leg, 0] - anchors[leg, 0], out.points[leg, 1] - anchors[leg, 1],
                    out.points[leg, 2] - anchors[leg, 2])
         along = stretch[0] * normal[0] + stretch[1] * normal[1] + stretch[2] * normal[2]
@@ -212,15 +225,18 @@ def _points_in_tibias(feet, points, local):
 COMPLIANT = np.dtype([("radius", np.float64), ("stiffness", np.float64), ("exponent", np.float64),
                       ("damping", np.float64), ("tangential_stiffness", np.float64),
                       ("tangential_damping", np.float64), ("friction", np.float64),
+                      ("time_step", np.float64),                # s, the physics step the anchors roll over
                       ("anchors", np.float64, (LEGS, 3)), ("applied_forces", np.float64, (LEGS, 3)),
                       ("applied_offsets", np.float64, (LEGS, 3))])
 
 
-def compliant_record(config: ContactConfig, foot_radius: float) -> np.ndarray:
-    """A one-element COMPLIANT array with no anchor and no force yet."""
+def compliant_record(config: ContactConfig, foot_radius: float, time_step: float) -> np.ndarray:
+    """A one-element COMPLIANT array with no anchor and no force yet, for a physics step of
+    `time_step` s."""
     return one_record(COMPLIANT, radius=foot_radius, stiffness=config.stiffness, exponent=config.exponent,
                       damping=config.damping, tangential_stiffness=config.tangential_stiffness,
-                      tangential_damping=config.tangential_damping, friction=config.friction, anchors=np.nan,
+                      tangential_damping=config.tangential_damping, friction=config.friction,
+                      time_step=time_step, anchors=np.nan,
                       applied_forces=0.0, applied_offsets=0.0)
 
 
@@ -246,7 +262,7 @@ class CompliantContact(ContactModel):
 
     def __init__(self, config, terrain: Terrain):
         super().__init__(config, terrain)
-        record = compliant_record(config.contact, config.robot.foot_radius)
+        record = compliant_record(config.contact, config.robot.foot_radius, config.run.time_step)
         self._model = raw(record)                   # what the kernels read and update
         self.anchors = record["anchors"][0]         # views of it
         self._applied_forces, self._applied_offsets = record["applied_forces"][0], record["applied_offsets"][0]

@@ -1,5 +1,6 @@
 """The fusion filters' compiled paths against the readable functions and numpy formulas they speed up."""
 
+import math
 import pickle
 from unittest import mock
 
@@ -12,8 +13,9 @@ from estimators.config import TerrainEstimatorConfig
 from estimators.ekf import FEET_UPDATE, correct_feet, feet_correction
 from estimators.fusion import (ACCEL_ERRORS, ERROR_DIM, FOOT0, MISSING, NO_TERRAIN, NOMINAL, OUTPUT_SETTINGS,
                                POSITION, TILT_SUMS, BiasStepDetector, NominalState, StepState, TerrainGrowth,
-                               current_pose, drift_statistic, foot_nis, horizontal_basis, imu_sample_and_pose, inject,
-                               output_covariances, pose_covariances, roll_feet, sink_feet, step_covariances)
+                               current_pose, drift_statistic, foot_nis, ground_normal_in_body, horizontal_basis,
+                               imu_sample_and_pose, inject, output_covariances, pose_covariances, roll_feet, sink_feet,
+                               step_covariances)
 from estimators.preintegration import Preintegration, imu_sample
 from estimators.leg_odometry import StanceTracker
 from estimators.registry import make_estimator
@@ -297,3 +299,15 @@ def test_imu_sample_and_pose_is_the_sample_then_the_pose(missing):
         assert interval == a.dt
         np.testing.assert_allclose((position_now, velocity_now), expected_pose, rtol=1e-12, atol=1e-14)
     assert a.record.tobytes() == b.record.tobytes()
+
+
+def test_the_feet_roll_on_the_terrain_plane_s_normal_in_the_body_frame():
+    slope = math.radians(10.0)
+    terrain = np.array([math.tan(slope), 0.0, 0.1])            # rising 10 deg along x
+    level = (0.0, 0.0, 0.0, 1.0)
+    np.testing.assert_allclose(ground_normal_in_body(terrain, level), (-math.sin(slope), 0.0, math.cos(slope)),
+                               atol=1e-12)
+    along_the_slope = (0.0, math.sin(-slope / 2), 0.0, math.cos(-slope / 2))   # body pitched nose-up by 10 deg
+    np.testing.assert_allclose(ground_normal_in_body(terrain, along_the_slope), (0.0, 0.0, 1.0), atol=1e-12)
+    np.testing.assert_allclose(ground_normal_in_body(None, along_the_slope), rot.up_in_body(along_the_slope),
+                               atol=1e-15)

@@ -188,7 +188,7 @@ def test_swapped_record_arguments_are_an_error():
         with pytest.raises(ValueError):
             stance_support_on_terrain(rule, 0.0, touching, touching, feet, np.zeros(3), boxes, support)
     read_out = raw(read_out_record(cfg.run.time_step, LegGeometry.from_config(cfg.robot)))
-    model = raw(compliant_record(cfg.contact, cfg.robot.foot_radius))
+    model = raw(compliant_record(cfg.contact, cfg.robot.foot_radius, cfg.run.time_step))
     positions = np.zeros(24)
     _read_out_and_hard_finger(positions, positions, read_out, model, boxes, rule)
     with pytest.raises(ValueError):

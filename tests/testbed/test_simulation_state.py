@@ -95,7 +95,7 @@ def test_compliant_contact_kernel_agrees_with_the_readable_law(terrain):
                                                   truth.joint_positions, truth.joint_velocities)):
             np.testing.assert_allclose(ours, theirs, **TOLERANCE)
         depth, normals = sim.terrain.sphere_contacts(feet.centers, radius)
-        expected, offsets = hard_finger(feet, depth, normals, anchors, cfg.contact, radius)
+        expected, offsets = hard_finger(feet, depth, normals, anchors, cfg.contact, radius, cfg.run.time_step)
         pending = model.pending()
         for ours, theirs in zip(pending[:4], expected[:4]):
             np.testing.assert_allclose(ours, theirs, **TOLERANCE)
