@@ -25,7 +25,7 @@ from testbed.control.posture import (POSTURE_LAWS, PostureCorrection, PostureMea
                                      checked_correction, estimated_height, kinematic_height, levelling_rotation,
                                      tilted_targets, untilted_positions)
 from testbed.control.command import Command
-from testbed.control.rolling import StanceRolling, ground_normal
+from testbed.control.rolling import StanceRolling
 from testbed.model.errors import PluginFailure
 from testbed.control.startup import CalibrationPoses
 
@@ -286,8 +286,7 @@ class Pilot(Controller):
                 self.encoder_feet = foot_positions(self.geometry, self.encoder_positions)
                 # The planted feet's targets roll with their spheres (testbed/control/rolling.py).
                 planted = ~self.gait.state.swinging & (self.walking_gait and sample.t >= self.startup_time)
-                self.rolling.roll(self.gait.state.feet, self.encoder_positions, planted,
-                                  ground_normal(self.encoder_feet, planted))
+                self.rolling.roll(self.gait.state.feet, self.encoder_positions, planted, self.encoder_feet)
                 self._gait_frame_stale = True
                 stance = self.foot_contact & ~self.gait.state.swinging
                 self.odometry.update(self.encoder_positions, stance, heading.yaw)

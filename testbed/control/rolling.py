@@ -55,12 +55,13 @@ class StanceRolling:
         self.previous = np.array(joints, dtype=float)
         self.planted_before = np.zeros(6, dtype=bool)
 
-    def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray, normal: np.ndarray) -> None:
+    def roll(self, feet: np.ndarray, joints: np.ndarray, planted: np.ndarray, joint_feet: np.ndarray) -> None:
         """Move the rows of `feet` (6, 3; gait frame, in place) planted now and at the last call by
-        their spheres' rolling from the last call's `joints` (18,) rad to these, on ground of unit
-        `normal`."""
+        their spheres' rolling from the last call's `joints` (18,) rad to these, on the plane of the
+        `planted` rows of `joint_feet` (6, 3; body frame, the feet at `joints`)."""
         both = planted & self.planted_before
         if both.any():
+            normal = ground_normal(joint_feet, planted)
             feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius, normal)[both]
         self.previous[:] = joints
         self.planted_before[:] = planted

@@ -10,6 +10,7 @@ from testbed.runtime import config
 
 RADIUS = 0.01
 UP = np.array([0.0, 0.0, 1.0])
+LEVEL_FEET = np.column_stack([np.cos(np.arange(6)), np.sin(np.arange(6)), np.full(6, -0.1)])   # on level ground
 
 
 def geometry_and_stance():
@@ -52,12 +53,12 @@ def test_only_feet_planted_at_both_samples_move_and_the_rolling_adds_up():
     rolling = StanceRolling(geometry, RADIUS, joints)
     feet = np.zeros((6, 3))
     planted = np.array([True, True, True, False, False, True])
-    rolling.roll(feet, joints, planted, UP)                  # the first sample only remembers the angles
+    rolling.roll(feet, joints, planted, LEVEL_FEET)                # the first sample only remembers the angles
     np.testing.assert_array_equal(feet, 0.0)
     path = [joints + k * np.tile([0.001, 0.004, -0.001], 6) for k in range(1, 11)]
     now_planted = np.array([True, True, False, True, False, True])
     for angles in path:
-        rolling.roll(feet, angles, now_planted, UP)
+        rolling.roll(feet, angles, now_planted, LEVEL_FEET)
     both = planted & now_planted
     expected = sum(sphere_rolling(b, a, geometry, RADIUS, UP) for a, b in zip([joints] + path[:-1], path))
     np.testing.assert_allclose(feet[both], expected[both], rtol=1e-12, atol=1e-15)
