@@ -36,7 +36,8 @@ class FusionConfig:
     initial_tilt_std_deg: float
     initial_yaw_std_deg: float
     initial_velocity_std: float        # m/s
-    accel_gate_probability: float      # chi-square gate (3 dof) of the body acceleration a sample implies
+    accel_gate_probability: float      # chi-square gate (3 dof) of a specific force read as gravity's direction
+    spike_body_accel: float            # m/s^2: a specific force implying a larger body acceleration is a spike
     gate_recovery_time: float          # s: after this long rejecting, the tilt is reopened as at start
     still_window: float                # s, span of a still-body gravity measurement (estimators/stillness.py)
     still_max_rate_dps: float          # deg/s, largest turn rate of a still body
@@ -59,7 +60,7 @@ class FusionConfig:
     def __post_init__(self) -> None:
         for name in ("gyro_noise_density", "gyro_bias_initial_std", "accel_noise_density", "accel_bias_initial_std",
                      "accel_cross_axis_std", "body_accel_std", "initial_tilt_std_deg", "initial_yaw_std_deg",
-                     "initial_velocity_std", "gate_recovery_time",
+                     "initial_velocity_std", "spike_body_accel", "gate_recovery_time",
                      "foot_position_std", "foot_slip_std", "bias_fault_window", "bias_fault_std"):
             positive(f"estimators.ekf.{name}", getattr(self, name))
         non_negative("estimators.ekf.gyro_bias_random_walk", self.gyro_bias_random_walk)

@@ -373,9 +373,9 @@ class FusionEstimator(Estimator):
         self.nominal = np.zeros(1, dtype=NOMINAL)
         self.P = np.zeros((ERROR_DIM, ERROR_DIM))
         self.t: float | None = None
-        # The specific force gate: the squared body acceleration beyond which a sample is an
-        # outlier, and the body acceleration's variance.
-        self.pre = Preintegration(gravity, self.accel_gate * self.noise.body_accel, self.noise.body_accel)
+        # The specific force gate: the squared body acceleration beyond which a sample is a spike,
+        # and the body acceleration's variance.
+        self.pre = Preintegration(gravity, params.spike_body_accel**2, self.noise.body_accel)
         self.rejected_accel = 0
         self.tilt_restarts = 0
         self.velocity_restarts = 0

@@ -21,6 +21,7 @@ def test_resolved_config_round_trips():
 @pytest.mark.parametrize("section, values, message", [
     ("ekf", {"gyro_noise_density": -1.0}, "estimators.ekf.gyro_noise_density must be a positive finite number"),
     ("ekf", {"accel_gate_probability": 1.0}, "estimators.ekf.accel_gate_probability must lie in [0.5, 1)"),
+    ("ekf", {"spike_body_accel": 0.0}, "estimators.ekf.spike_body_accel must be a positive finite number"),
     ("terrain", {"slope_random_walk": 0.0}, "estimators.terrain.slope_random_walk must be a positive"),
     ("ukf", {"alpha": 2.0}, "estimators.ukf.alpha must lie in (0, 1]"),
     ("mahony", {"k_i": -0.1}, "estimators.mahony.k_i must be a finite number >= 0"),

@@ -88,6 +88,28 @@ def test_accelerometer_spikes_are_gated(runs, walk, config, seed):
     assert tilt_rmse_deg(estimates, walk) < 1.1 * clean
 
 
+def with_landing_shocks(samples: list, every: float = 0.5, shock: float = 45.0) -> list:
+    """A body acceleration of `shock` m/s^2 along z_b for one sample every `every` seconds from 2 s:
+    a tripod landing on DART contact reaches 30-51 m/s^2."""
+    out, next_shock = [], 2.0
+    for sample in samples:
+        if isinstance(sample, ImuSample) and sample.t >= next_shock:
+            sample = ImuSample(sample.t, sample.accel + np.array([0.0, 0.0, shock]), sample.gyro)
+            next_shock += every
+        out.append(sample)
+    return out
+
+
+def test_landing_shocks_are_integrated_as_motion(runs, config):
+    _, clean = run_ekf(config, runs.samples(0))
+    _, shaken = run_ekf(config, with_landing_shocks(runs.samples(0)))
+    assert shaken.rejected_accel == clean.rejected_accel
+    gated = replace(config, estimators=replace(config.estimators, ekf=replace(config.estimators.ekf,
+                                                                              spike_body_accel=40.0)))
+    _, held_out = run_ekf(gated, with_landing_shocks(runs.samples(0)))
+    assert held_out.rejected_accel > clean.rejected_accel
+
+
 def test_encoder_dropout_of_one_second(runs, walk, config):
     clean_estimates, _ = runs.run("ekf", 0)
     gap = [s for s in runs.samples(0) if not (isinstance(s, EncoderSample) and 3.0 <= s.t < 4.0)]
