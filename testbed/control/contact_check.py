@@ -177,12 +177,13 @@ def checked_contact(flags, forces, measured, gait_frame, gait_state, state, para
                 agreement[leg, 0] = agreement[leg, 1] = 0.0
                 s.marked += 1
         if faulty[leg] == 0:
-            # Ground read in the air is believed in a swing's landing part from a sensor that has
-            # read no ground since the swing began: a step's top met on the way down. Waiting for
-            # the foot to be held up there lets its target sink, and the body yields: the leg
-            # lifts the body off the other feet instead.
-            landed_high = in_air and landing[leg] and s.released[leg] != 0
-            contact[leg] = (flags[leg] and (not in_air or landed_high)) or held_up
+            # Ground read in the air is believed from a sensor that has read no ground since the
+            # swing (its landing part) began: a riser met on the way up, a step's top met on the
+            # way down. Waiting for the foot to be held up or stopped there fails where the body
+            # yields instead: a foot against a block's corner on the way up pushed the body back
+            # and turned it; a foot on a step's top lifted the body off the other feet.
+            met_in_air = in_air and s.released[leg] != 0
+            contact[leg] = (flags[leg] and (not in_air or met_in_air)) or held_up
             continue
         # the foot is held up, stands, or has come down to the other feet's plane
         contact[leg] = held_up or not swinging[leg] or (landing[leg] and heights[leg] <= 0.0)
