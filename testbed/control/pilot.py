@@ -263,7 +263,7 @@ class Pilot(Controller):
         estimate = self.latest_estimate
         roll, pitch = attitude if attitude is not None else (estimate.roll, estimate.pitch)
         stance = self.foot_contact & ~self.gait.state.swinging
-        if stance.sum() < 3:
+        if np.count_nonzero(stance) < 3:
             # No support plane is measured now; an estimator's body height is its last fit's,
             # which the body has moved from since (docs/control.md, "The height at a stand").
             height = None
