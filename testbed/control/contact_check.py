@@ -17,9 +17,9 @@ joint encoders and the targets the pilot gave the servos, can contradict a flag:
   `air_height` above both the plane of the stance feet (gait frame, encoders) and the point
   where its swing began.
 
-A flag on a foot in the air is not believed; a foot held up touches whatever its sensor says.
-A working sensor reads no ground at some point of every swing (a foot that then meets a riser or
-a step's top reads ground in the air, rightly): ground read in the air by a sensor that has not
+A foot held up touches whatever its sensor says. A working sensor reads no ground at some point
+of every swing, and a foot that then meets a riser on its way up or a step's top on its way down
+reads ground in the air, rightly: that flag is believed; ground read in the air by a sensor that has not
 read "none" since the swing began, and since its landing part began (a riser touched on the way
 up is cleared by then), or no ground under a foot held up, is disagreement; it adds up (and is forgotten at `forgetting` s per s of
 agreement); at `fault_time` the sensor is marked faulty, and at once for a dropped (NaN)
