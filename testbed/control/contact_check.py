@@ -17,9 +17,9 @@ joint encoders and the targets the pilot gave the servos, can contradict a flag:
   `air_height` above both the plane of the stance feet (gait frame, encoders) and the point
   where its swing began.
 
-A flag on a foot in the air is not believed; a foot held up touches whatever its sensor says.
-A working sensor reads no ground at some point of every swing (a foot that then meets a riser or
-a step's top reads ground in the air, rightly): ground read in the air by a sensor that has not
+A foot held up touches whatever its sensor says. A working sensor reads no ground at some point
+of every swing, and a foot that then meets a riser on its way up or a step's top on its way down
+reads ground in the air, rightly: that flag is believed; ground read in the air by a sensor that has not
 read "none" since the swing began, and since its landing part began (a riser touched on the way
 up is cleared by then), or no ground under a foot held up, is disagreement; it adds up (and is forgotten at `forgetting` s per s of
 agreement); at `fault_time` the sensor is marked faulty, and at once for a dropped (NaN)
@@ -177,12 +177,13 @@ def checked_contact(flags, forces, measured, gait_frame, gait_state, state, para
                 agreement[leg, 0] = agreement[leg, 1] = 0.0
                 s.marked += 1
         if faulty[leg] == 0:
-            # Ground read in the air is believed in a swing's landing part from a sensor that has
-            # read no ground since the swing began: a step's top met on the way down. Waiting for
-            # the foot to be held up there lets its target sink, and the body yields: the leg
-            # lifts the body off the other feet instead.
-            landed_high = in_air and landing[leg] and s.released[leg] != 0
-            contact[leg] = (flags[leg] and (not in_air or landed_high)) or held_up
+            # Ground read in the air is believed from a sensor that has read no ground since the
+            # swing (its landing part) began: a riser met on the way up, a step's top met on the
+            # way down. Waiting for the foot to be held up or stopped there fails where the body
+            # yields instead: a foot against a block's corner on the way up pushed the body back
+            # and turned it; a foot on a step's top lifted the body off the other feet.
+            met_in_air = in_air and s.released[leg] != 0
+            contact[leg] = (flags[leg] and (not in_air or met_in_air)) or held_up
             continue
         # the foot is held up, stands, or has come down to the other feet's plane
         contact[leg] = held_up or not swinging[leg] or (landing[leg] and heights[leg] <= 0.0)

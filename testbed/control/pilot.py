@@ -262,10 +262,14 @@ class Pilot(Controller):
     def _posture_measurement(self, attitude: tuple[float, float] | None) -> PostureMeasurement:
         estimate = self.latest_estimate
         roll, pitch = attitude if attitude is not None else (estimate.roll, estimate.pitch)
-        if estimate.body_height is not None:
+        stance = self.foot_contact & ~self.gait.state.swinging
+        if np.count_nonzero(stance) < 3:
+            # No support plane is measured now; an estimator's body height is its last fit's,
+            # which the body has moved from since (docs/control.md, "The height at a stand").
+            height = None
+        elif estimate.body_height is not None:
             height = estimated_height(estimate.body_height, estimate.terrain_roll, estimate.terrain_pitch)
         else:
-            stance = self.foot_contact & ~self.gait.state.swinging
             height = kinematic_height(self.geometry, self.encoder_positions, stance, roll, pitch,
                                       self.config.robot.foot_radius)
         height_error = None if height is None else height - (self.config.robot.stance_height - self.crouch)

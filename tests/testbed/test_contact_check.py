@@ -9,6 +9,7 @@ from testbed.control.gait import GAIT_STATE
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all
 from testbed.runtime import config
 from testbed.runtime.runner import run
+from testbed.tools.locobench import course_case
 
 DT = 0.001
 GAIN = 60.0
@@ -52,19 +53,38 @@ def test_ground_reported_under_a_foot_high_in_the_air_is_not_believed_and_marks_
     assert contact_check.faults_detected == 1
 
 
-def test_ground_read_high_in_a_swings_landing_part_after_reading_none_is_a_step_top():
-    """The same foot 4 cm up, but its sensor read no ground earlier in the swing and the swing is
-    landing: a step's top met on the way down, believed at once (not only once the foot is held
-    up, which the body yields to); in the rising part it is not believed."""
-    for landing_part, believed in ((True, True), (False, False)):
-        contact_check = check()
-        feet = NEUTRAL.copy()
-        feet[FRONT_LEFT, 2] += 0.04
-        swinging = np.arange(6) == FRONT_LEFT
-        landing = swinging & landing_part
-        tick(contact_check, feet, ~swinging, swinging, landing)            # in the air, reading none
+@pytest.mark.parametrize("landing_part", [True, False])
+def test_ground_read_high_in_a_swing_after_reading_none_is_a_step_top_or_a_riser(landing_part):
+    """The same foot 4 cm up, but its sensor read no ground earlier in the swing: in the landing
+    part a step's top met on the way down, in the rising part a riser or a block's corner met on
+    the way up; believed at once (not only once the foot is held up or stopped, which the body
+    yields to), and not marked."""
+    contact_check = check()
+    feet = NEUTRAL.copy()
+    feet[FRONT_LEFT, 2] += 0.04
+    swinging = np.arange(6) == FRONT_LEFT
+    landing = swinging & landing_part
+    tick(contact_check, feet, ~swinging, swinging, landing)            # in the air, reading none
+    for _ in range(int(ContactLimits().fault_time / DT) + 2):
         contact = tick(contact_check, feet, np.ones(6, bool), swinging, landing)
-        assert contact[FRONT_LEFT] == believed and contact[1:].all()
+        assert contact.all()
+    assert not contact_check.faulty.any()
+
+
+def test_ground_read_high_in_the_rising_part_from_lift_off_on_is_not_a_riser():
+    """A sensor that reads ground from the swing's start (stuck on) never read none in it: the
+    foot 4 cm up in the rising part is not touching, and the sensor is marked."""
+    contact_check = check()
+    feet = NEUTRAL.copy()
+    feet[FRONT_LEFT, 2] += 0.04
+    swinging = np.arange(6) == FRONT_LEFT
+    rising = np.zeros(6, bool)
+    for _ in range(int(ContactLimits().fault_time / DT) - 2):
+        contact = tick(contact_check, feet, np.ones(6, bool), swinging, rising)
+        assert not contact[FRONT_LEFT] and contact[1:].all()
+    for _ in range(3):
+        tick(contact_check, feet, np.ones(6, bool), swinging, rising)
+    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
 
 
 def test_ground_read_on_from_the_rising_part_into_the_landing_part_is_not_a_step_top():
@@ -76,7 +96,8 @@ def test_ground_read_on_from_the_rising_part_into_the_landing_part_is_not_a_step
     feet[FRONT_LEFT, 2] += 0.04
     swinging = np.arange(6) == FRONT_LEFT
     tick(contact_check, feet, ~swinging, swinging, np.zeros(6, bool))     # rising, reading none
-    tick(contact_check, feet, np.ones(6, bool), swinging, np.zeros(6, bool))   # stuck on
+    contact = tick(contact_check, feet, np.ones(6, bool), swinging, np.zeros(6, bool))   # stuck on
+    assert contact.all()                                                   # taken for a riser
     for _ in range(int(ContactLimits().fault_time / DT) - 2):
         contact = tick(contact_check, feet, np.ones(6, bool), swinging, swinging)
         assert not contact[FRONT_LEFT] and contact[1:].all()
@@ -149,3 +170,15 @@ def test_the_wave_gaits_fast_swings_land_on_the_ground_not_above_it():
                              "gait": {"speed": 0.04}})
     metrics = run(cfg).metrics
     assert not metrics["fell"] and metrics["tilt_max_deg"] < 1.0
+
+
+@pytest.mark.slow
+def test_a_swing_foot_meeting_a_blocks_corner_on_its_way_up_rises_over_it():
+    """Course B of the locomotion benchmark, seed index 0 (rough +-3 cm first), ripple, DART
+    contact: at 7.4 s the front left foot, which slid off a block's top, meets its corner 4.5 cm
+    up on the next swing. Not believed as a riser (ground in the air), its swing drove it into
+    the corner until the sensor was marked faulty: the body was pushed back and turned by 13 deg,
+    and the EKF kept 3 deg of that turn (3.1 deg at 12 s)."""
+    case = course_case("B", 0, "ripple", "dart", max_duration=12.0)
+    metrics = run(config.from_dict(case.config)).metrics
+    assert not metrics["fell"] and abs(metrics["yaw_error_final_deg"]) < 1.0

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from estimators.base import Estimate
 from testbed.runtime import config
 from testbed.model.errors import ConfigError, PluginFailure
 from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist, walk_plane
@@ -438,3 +439,23 @@ def test_the_body_stands_low_enough_through_the_calibration_poses_on_a_20_degree
     poses = np.array([pilot.startup.rise(t) == 1.0 for t in times]) & (times < pilot.startup_time)
     assert crouched["ik_limited_ticks"] == 0 and upright["ik_limited_ticks"] > 300
     assert 0.0 < depth[poses].min() == depth[poses].max() <= cfg.posture.max_crouch
+
+
+def test_the_height_is_not_measured_while_fewer_than_three_feet_stand():
+    """An estimator's body height is its last support-plane fit's while fewer than three feet are
+    down (a DART stand rests on two diagonal feet): the law gets no height error then, and holds
+    its height instead of integrating a difference the body has moved from."""
+    cfg = config.load(None, {"run": {**WALK["run"], "terrain": "flat", "duration": 1.0}})
+    pilot = build_parts(cfg).controller
+    pilot.latest_estimate = Estimate(3.0, np.array([0.0, 0.0, 0.0, 1.0]), 0.0, 0.0, 0.0, terrain_roll=0.0,
+                                     terrain_pitch=0.0, body_height=cfg.robot.stance_height + 0.01)
+    pilot.foot_contact[:] = True
+    assert pilot._posture_measurement(None).height_error == pytest.approx(0.01)
+    pilot.foot_contact[:] = [True, False, False, True, True, False]
+    assert pilot._posture_measurement(None).height_error == pytest.approx(0.01)
+    pilot.foot_contact[:] = [True, False, False, True, False, False]
+    assert pilot._posture_measurement(None).height_error is None
+    pilot.latest_estimate = Estimate(3.0, np.array([0.0, 0.0, 0.0, 1.0]), 0.0, 0.0, 0.0)
+    assert pilot._posture_measurement(None).height_error is None       # the encoders' plane alike
+    pilot.foot_contact[:] = True
+    assert abs(pilot._posture_measurement(None).height_error) < 0.005
