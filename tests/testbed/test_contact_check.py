@@ -71,6 +71,17 @@ def test_ground_read_high_in_a_swing_after_reading_none_is_a_step_top_or_a_riser
     assert not contact_check.faulty.any()
 
 
+def assert_front_left_marked_after_fault_time(contact_check, feet, swinging, landing):
+    """Every sensor reads ground: the front left foot's is not believed in the air until
+    `fault_time`, and is then marked faulty."""
+    for _ in range(int(ContactLimits().fault_time / DT) - 2):
+        contact = tick(contact_check, feet, np.ones(6, bool), swinging, landing)
+        assert not contact[FRONT_LEFT] and contact[1:].all()
+    for _ in range(3):
+        tick(contact_check, feet, np.ones(6, bool), swinging, landing)
+    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
+
+
 def test_ground_read_high_in_the_rising_part_from_lift_off_on_is_not_a_riser():
     """A sensor that reads ground from the swing's start (stuck on) never read none in it: the
     foot 4 cm up in the rising part is not touching, and the sensor is marked."""
@@ -79,12 +90,7 @@ def test_ground_read_high_in_the_rising_part_from_lift_off_on_is_not_a_riser():
     feet[FRONT_LEFT, 2] += 0.04
     swinging = np.arange(6) == FRONT_LEFT
     rising = np.zeros(6, bool)
-    for _ in range(int(ContactLimits().fault_time / DT) - 2):
-        contact = tick(contact_check, feet, np.ones(6, bool), swinging, rising)
-        assert not contact[FRONT_LEFT] and contact[1:].all()
-    for _ in range(3):
-        tick(contact_check, feet, np.ones(6, bool), swinging, rising)
-    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
+    assert_front_left_marked_after_fault_time(contact_check, feet, swinging, rising)
 
 
 def test_ground_read_on_from_the_rising_part_into_the_landing_part_is_not_a_step_top():
@@ -98,12 +104,7 @@ def test_ground_read_on_from_the_rising_part_into_the_landing_part_is_not_a_step
     tick(contact_check, feet, ~swinging, swinging, np.zeros(6, bool))     # rising, reading none
     contact = tick(contact_check, feet, np.ones(6, bool), swinging, np.zeros(6, bool))   # stuck on
     assert contact.all()                                                   # taken for a riser
-    for _ in range(int(ContactLimits().fault_time / DT) - 2):
-        contact = tick(contact_check, feet, np.ones(6, bool), swinging, swinging)
-        assert not contact[FRONT_LEFT] and contact[1:].all()
-    for _ in range(3):
-        tick(contact_check, feet, np.ones(6, bool), swinging, swinging)
-    assert contact_check.faulty.tolist() == [True, False, False, False, False, False]
+    assert_front_left_marked_after_fault_time(contact_check, feet, swinging, swinging)
 
 
 def test_a_foot_held_up_counts_as_touching_whatever_its_sensor_says():
