@@ -62,16 +62,22 @@ def test_yaw_is_reported_as_unobserved(runs, walk):
     assert np.all(np.abs(drift) < 4 * growth + 1e-4)
 
 
-def with_accel_spikes(samples: list, every: float = 0.5) -> tuple[list, int]:
-    """Full-scale spikes on the accelerometer, one sample every `every` seconds from 2 s."""
-    out, count, next_spike = [], 0, 2.0
+def with_accel_hits(samples: list, hit, every: float = 0.5) -> tuple[list, int]:
+    """The accelerometer reading of one IMU sample every `every` seconds from 2 s replaced by
+    `hit(reading)`; and how many were."""
+    out, count, next_hit = [], 0, 2.0
     for sample in samples:
-        if isinstance(sample, ImuSample) and sample.t >= next_spike:
-            sample = ImuSample(sample.t, np.clip(sample.accel + ACCEL_FULL_SCALE, -ACCEL_FULL_SCALE,
-                                                 ACCEL_FULL_SCALE), sample.gyro)
-            count, next_spike = count + 1, next_spike + every
+        if isinstance(sample, ImuSample) and sample.t >= next_hit:
+            sample = ImuSample(sample.t, hit(sample.accel), sample.gyro)
+            count, next_hit = count + 1, next_hit + every
         out.append(sample)
     return out, count
+
+
+def with_accel_spikes(samples: list) -> tuple[list, int]:
+    """Full-scale spikes on every axis of the accelerometer."""
+    return with_accel_hits(samples, lambda accel: np.clip(accel + ACCEL_FULL_SCALE, -ACCEL_FULL_SCALE,
+                                                          ACCEL_FULL_SCALE))
 
 
 def run_ekf(config, samples):
@@ -88,24 +94,17 @@ def test_accelerometer_spikes_are_gated(runs, walk, config, seed):
     assert tilt_rmse_deg(estimates, walk) < 1.1 * clean
 
 
-def with_landing_shocks(samples: list, every: float = 0.5, shock: float = 45.0) -> list:
-    """A body acceleration of `shock` m/s^2 along z_b for one sample every `every` seconds from 2 s:
-    a tripod landing on DART contact reaches 30-51 m/s^2."""
-    out, next_shock = [], 2.0
-    for sample in samples:
-        if isinstance(sample, ImuSample) and sample.t >= next_shock:
-            sample = ImuSample(sample.t, sample.accel + np.array([0.0, 0.0, shock]), sample.gyro)
-            next_shock += every
-        out.append(sample)
-    return out
+def with_landing_shocks(samples: list, shock: float = 45.0) -> list:
+    """A body acceleration of `shock` m/s^2 along z_b: a tripod landing on DART contact reaches
+    30-51 m/s^2 for a few ms."""
+    return with_accel_hits(samples, lambda accel: accel + np.array([0.0, 0.0, shock]))[0]
 
 
 def test_landing_shocks_are_integrated_as_motion(runs, config):
     _, clean = run_ekf(config, runs.samples(0))
     _, shaken = run_ekf(config, with_landing_shocks(runs.samples(0)))
     assert shaken.rejected_accel == clean.rejected_accel
-    gated = replace(config, estimators=replace(config.estimators, ekf=replace(config.estimators.ekf,
-                                                                              spike_body_accel=40.0)))
+    gated = config.replace(estimators={"ekf": {"spike_body_accel": 40.0}})
     _, held_out = run_ekf(gated, with_landing_shocks(runs.samples(0)))
     assert held_out.rejected_accel > clean.rejected_accel
 
