@@ -43,6 +43,7 @@ class FusionConfig:
     still_max_rate_dps: float          # deg/s, largest turn rate of a still body
     still_max_force_change: float      # m/s^2, largest change of the specific force within a still window
     still_force_std: float             # m/s^2, what a still body's specific force varies beyond white noise
+    still_rate_std: float              # rad/s, what a standing body still turns beyond the gyro's white noise
     rolling_feet: bool                 # planted foot spheres roll as their tibiae turn (estimators/leg_odometry.py)
     stance_min_force: float            # N: a foot in contact carrying less is not planted yet (or any more)
     foot_position_std: float           # m, stance-foot position from the encoders (noise, compliance)
@@ -72,7 +73,7 @@ class FusionConfig:
         non_negative("estimators.ekf.accel_bias_random_walk", self.accel_bias_random_walk)
         non_negative("estimators.ekf.stance_min_force", self.stance_min_force)
         positive("estimators.ekf still window", self.still_window, self.still_max_rate_dps, self.still_max_force_change,
-                 self.still_force_std)
+                 self.still_force_std, self.still_rate_std)
         _probability("estimators.ekf.accel_gate_probability", self.accel_gate_probability)
         _probability("estimators.ekf.foot_gate_probability", self.foot_gate_probability)
         _probability("estimators.ekf.bias_fault_probability", self.bias_fault_probability)

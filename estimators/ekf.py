@@ -15,13 +15,15 @@ state and reset (Sola 2017, section 6).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
 from testbed.model import spatial as rot
 from estimators.base import imu_position, imu_rotation
-from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, ERROR_DIM, FOOT0, POSITION0, THETA, FusionEstimator,
+from estimators.fusion import (ACCEL_BIAS, ACCEL_CROSS, BIAS, ERROR_DIM, FOOT0, POSITION0, THETA, FusionEstimator,
                                foot_nis, inject_arrays, inject_in_place)
 from estimators.preintegration import current_attitude
 from testbed.model.kinematics import LegGeometry
@@ -221,6 +223,11 @@ class EkfEstimator(FusionEstimator):
         predicted = self.state.accel_bias + (g * ux, g * uy, g * (uz + cx * ux + cy * uy))
         return self._correct(H, mean_force - predicted, variance, gate)
 
+    def _correct_yaw_rate_bias(self, mean_rate: float, variance: float) -> None:
+        H = np.zeros((1, ERROR_DIM))
+        H[0, BIAS.start + 2] = 1.0
+        self._correct(H, np.array([mean_rate - self.state.bias[2]]), variance, math.inf)
+
     def _hold_accel_bias(self) -> None:
         super()._hold_accel_bias()
         self._feet_update[0]["consider_start"], self._feet_update[0]["consider_stop"] = consider_bounds(self.consider)
@@ -232,10 +239,10 @@ class EkfEstimator(FusionEstimator):
         return accepted
 
     def _correct(self, H: np.ndarray, innovation: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
-        """Gated Kalman update for a 3-vector measurement. Returns (applied, NIS)."""
+        """Gated Kalman update, noise `variance` I. Returns (applied, NIS)."""
         PHt = self.P @ H.T
         S = H @ PHt
-        S.flat[::4] += variance
+        S.flat[::len(S) + 1] += variance
         S_inverse = np.linalg.inv(S)
         nis = float(innovation @ S_inverse @ innovation)
         if not nis <= gate:

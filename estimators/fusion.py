@@ -310,16 +310,18 @@ class BiasStepDetector:
         self._covariance[:] = 0.0
         return elapsed
 
-    def check(self, t: float, q: rot.Quaternion) -> tuple[float, float] | None:
+    def check(self, t: float, q: rot.Quaternion, untested_before: float = -math.inf) -> tuple[float, float] | None:
         """None, or when the bias moved (q: the current attitude): (the tilt's drift rate over the
-        window, rad/s; the window's length, s)."""
+        window, rad/s; the window's length, s). A window that began before `untested_before` (s)
+        ends untested."""
         if self._start is None:
             self._start = t
         elapsed = t - self._start
         if elapsed < self.window:
             return None
+        began = self._start
         statistic, drift = drift_statistic(self.sums, q)
-        moved = statistic > self.threshold
+        moved = statistic > self.threshold and began >= untested_before
         self.restart(t)
         if not moved:
             return None
@@ -362,6 +364,11 @@ class FusionEstimator(Estimator):
         self.still = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), params.still_max_force_change)
         # White accelerometer noise averaged over the window, and what a still body still shakes.
         self._still_variance = params.accel_noise_density**2 / params.still_window + params.still_force_std**2
+        # The same for the gyro. Until `startup_time` (s) the robot stands on planted feet and does
+        # not turn about its z axis (the calibration poses tilt it about x and y): a still window's
+        # mean z reading is then the z bias, which nothing else measures as directly.
+        self._still_rate_variance = params.gyro_noise_density**2 / params.still_window + params.still_rate_std**2
+        self.stands_until = startup_time
         self.terrain = TerrainFilter(terrain)
         self.bias_steps = BiasStepDetector(params.bias_fault_window, params.bias_fault_probability)
         # States whose uncertainty is carried but which updates leave alone (Schmidt 1966): the
@@ -414,6 +421,11 @@ class FusionEstimator(Estimator):
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         """Gravity-direction update from a step's mean specific force, noise `variance` I; applied
         only if the NIS <= gate. Returns (applied, NIS)."""
+
+    @abc.abstractmethod
+    def _correct_yaw_rate_bias(self, mean_rate: float, variance: float) -> None:
+        """Zero angular rate update about the body's z axis: a standing body's mean z gyro reading
+        `mean_rate` (rad/s) is the z bias, with noise `variance`."""
 
     @abc.abstractmethod
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -658,16 +670,20 @@ class FusionEstimator(Estimator):
             + (BODY_RATE_STD * self._without_gyro)**2
         self._extra[BIAS] = self._coast_variance
         self._without_gyro = self._coast_variance = 0.0
-        still_force = self.still.add(dt, (tx, ty, tz), (fx, fy, fz))
+        still = self.still.add(dt, (tx, ty, tz), (fx, fy, fz), self.state.bias)
         self._predict()
-        if still_force is not None:
-            self._correct_specific_force(still_force + self.state.accel_bias, self._still_variance, self.accel_gate)
+        if still is not None:
+            self._correct_specific_force(still.force + self.state.accel_bias, self._still_variance, self.accel_gate)
+            if self.t < self.stands_until:
+                self._correct_yaw_rate_bias(still.rate[2], self._still_rate_variance)
         if not np.count_nonzero(self.legs.tracked):     # (ndarray.any costs four times as much)
             # No leg pins the velocity: fall back on the gravity direction of the step's mean
             # specific force. Walking accelerations last longer than a step, so averaging over the
             # step does not reduce their variance: a weak reference, for long leg outages.
             self._correct_specific_force(mean_force + self.state.accel_bias, self.noise.body_accel, self.accel_gate)
-        moved = self.bias_steps.check(self.t, self.state.q)
+        # The poses' tilt corrections (the gyro's scale errors over their turns) are no bias step:
+        # windows that began while the robot stood are not tested.
+        moved = self.bias_steps.check(self.t, self.state.q, self.stands_until)
         if moved is not None:
             self._open_bias(np.array(rot.up_in_body(self.state.q)), *moved)
         if self.consider is None and self.t >= self.learn_accel_bias_until:

@@ -9,14 +9,22 @@ with the start-up calibration poses (testbed/startup.py), that is what tells the
 offset from a tilt. The test is the zero-velocity detector of pedestrian and legged navigation
 (Skog et al. 2010, "Zero-velocity detection: an algorithm evaluation"): the angular rate and the
 specific force stay within thresholds for the whole window. Windows do not overlap, so no sample
-is used twice.
+is used twice. A still window also gives the gyro's mean reading, which for a body known to stand
+(the start-up) is its bias: the zero angular rate update of the same literature.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+
+
+class StillMean(NamedTuple):
+    """A completed still window's means."""
+    force: np.ndarray       # (3,) m/s^2, specific force
+    rate: np.ndarray        # (3,) rad/s, the gyro's reading (bias included)
 
 
 class StillWindow:
@@ -26,12 +34,13 @@ class StillWindow:
         self.max_force_change = max_force_change    # m/s^2, an interval's mean force from the window's first
         self._time = 0.0
         self._force_sum = (0.0, 0.0, 0.0)
+        self._turn_sum = (0.0, 0.0, 0.0)
         self._first: tuple[float, float, float] | None = None
 
-    def add(self, dt: float, turn, force) -> np.ndarray | None:
-        """An interval of `dt` s with the gyro's rotation vector `turn` and the mean specific force
-        `force` (3-sequences). Returns the window's mean specific force when a still window
-        completes."""
+    def add(self, dt: float, turn, force, bias) -> StillMean | None:
+        """An interval of `dt` s with the gyro's rotation vector `turn` after the filter's bias
+        `bias` (rad/s) and the mean specific force `force` (3-sequences). Returns the window's means
+        when a still window completes."""
         # On Python floats: the filters call this at every step, and numpy's per-call cost on
         # three elements would be most of its cost.
         x, y, z = turn
@@ -48,14 +57,18 @@ class StillWindow:
             self._first = (fx, fy, fz)
         sx, sy, sz = self._force_sum
         self._force_sum = (sx + fx * dt, sy + fy * dt, sz + fz * dt)
+        bx, by, bz = bias
+        rx, ry, rz = self._turn_sum
+        self._turn_sum = (rx + x + bx * dt, ry + y + by * dt, rz + z + bz * dt)
         self._time += dt
         if self._time < self.duration - 1e-9:     # sums of dt round
             return None
-        mean = np.array(self._force_sum) / self._time
+        mean = StillMean(np.array(self._force_sum) / self._time, np.array(self._turn_sum) / self._time)
         self.reset()
         return mean
 
     def reset(self) -> None:
         self._time = 0.0
         self._force_sum = (0.0, 0.0, 0.0)
+        self._turn_sum = (0.0, 0.0, 0.0)
         self._first = None

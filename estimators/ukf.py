@@ -137,6 +137,9 @@ class UkfEstimator(FusionEstimator):
         cx, cy = self.state.accel_cross + dx[ACCEL_CROSS]
         return self.state.accel_bias + dx[ACCEL_BIAS] + self.gravity * np.array([ux, uy, uz + cx * ux + cy * uy])
 
+    def _hx_yaw_rate_bias(self, dx: np.ndarray) -> np.ndarray:
+        return self.state.bias[2:] + dx[BIAS][2:]
+
     def _hx_feet(self, dx: np.ndarray, index: np.ndarray, nominal: np.ndarray) -> np.ndarray:
         return nominal + dx[index]
 
@@ -153,6 +156,9 @@ class UkfEstimator(FusionEstimator):
 
     def _correct_specific_force(self, mean_force: np.ndarray, variance: float, gate: float) -> tuple[bool, float]:
         return self._correct(mean_force, variance, gate, self._hx_specific_force)
+
+    def _correct_yaw_rate_bias(self, mean_rate: float, variance: float) -> None:
+        self._correct(np.array([mean_rate]), variance, math.inf, self._hx_yaw_rate_bias)
 
     def _correct_feet(self, legs: np.ndarray, measured: np.ndarray) -> np.ndarray:
         """The feet gated one by one on their blocks (h is linear: S_i = P_ii + R), then one update."""
