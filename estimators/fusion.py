@@ -368,6 +368,10 @@ class FusionEstimator(Estimator):
         # not turn about its z axis (the calibration poses tilt it about x and y): a still window's
         # mean z reading is then the z bias, which nothing else measures as directly.
         self._still_rate_variance = params.gyro_noise_density**2 / params.still_window + params.still_rate_std**2
+        # Those windows need the body not to turn, not its specific force to hold: the
+        # accelerometer's noise over an interval (0.055 m/s^2 on the consumer part) breaks the
+        # force test of most windows, which the tilt needs and the z bias does not.
+        self.unturned = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), math.inf)
         self.stands_until = startup_time
         self.terrain = TerrainFilter(terrain)
         self.bias_steps = BiasStepDetector(params.bias_fault_window, params.bias_fault_probability)
@@ -671,11 +675,13 @@ class FusionEstimator(Estimator):
         self._extra[BIAS] = self._coast_variance
         self._without_gyro = self._coast_variance = 0.0
         still = self.still.add(dt, (tx, ty, tz), (fx, fy, fz), self.state.bias)
+        standing = self.t < self.stands_until
+        unturned = self.unturned.add(dt, (tx, ty, tz), (fx, fy, fz), self.state.bias) if standing else None
         self._predict()
         if still is not None:
             self._correct_specific_force(still.force + self.state.accel_bias, self._still_variance, self.accel_gate)
-            if self.t < self.stands_until:
-                self._correct_yaw_rate_bias(still.rate[2], self._still_rate_variance)
+        if unturned is not None:
+            self._correct_yaw_rate_bias(unturned.rate[2], self._still_rate_variance)
         if not np.count_nonzero(self.legs.tracked):     # (ndarray.any costs four times as much)
             # No leg pins the velocity: fall back on the gravity direction of the step's mean
             # specific force. Walking accelerations last longer than a step, so averaging over the
