@@ -62,6 +62,12 @@ class PostureLaw(abc.ABC):
         which kept its last joint angles (a law with integrators stops them, anti-windup)."""
 
 
+# The tilt loops' answer to a slide: the part of a tilt error beyond LARGE_TILT_ERROR (rad) has the
+# proportional gain LARGE_TILT_KP (PiLoop). Within it, the walk's own errors (0.1-0.3 deg RMS,
+# docs/results.md), the loops are the linear design of docs/control.md.
+LARGE_TILT_ERROR = math.radians(0.2)
+LARGE_TILT_KP = 3.0
+
 POSTURE_LAWS = Registry.of_subclasses("posture law", "posture_laws", PostureLaw)
 
 
@@ -81,24 +87,38 @@ class PiLoop:
     """u = -(kp e + ki * integral of e), discretised with a backward-Euler integrator (the same
     C(z) = kp + ki dt z / (z - 1) that docs/control.md analyses), clamped to +-limit.
 
+    The part of the error beyond `large_error` has the proportional gain `large_kp` instead of
+    `kp` (when `large_kp` is given): a foot sliding off an edge's corner tips the body by degrees
+    within 50-100 ms, and the legs catch it the sooner the harder the loop answers; errors within
+    `large_error` (the walk's own) see the linear loop of the design.
+
     Anti-windup by conditional integration: the integral stops while the output is saturated in
     the direction the error pushes, and while the caller says the output cannot be realised.
     A missing or broken (non-finite) error keeps the last output."""
 
-    def __init__(self, kp: float, ki: float, dt: float, limit: float):
+    def __init__(self, kp: float, ki: float, dt: float, limit: float, large_error: float = math.inf,
+                 large_kp: float | None = None):
         self.kp, self.ki, self.dt, self.limit = kp, ki, dt, limit
+        self.large_error = large_error
+        self.large_kp = kp if large_kp is None else large_kp
         self.integral = 0.0
         self.output = 0.0
+
+    def proportional(self, error: float) -> float:
+        """kp e, with `large_kp` for the part of e beyond `large_error`."""
+        beyond = max(abs(error) - self.large_error, 0.0)
+        return self.kp * error + (self.large_kp - self.kp) * math.copysign(beyond, error)
 
     def update(self, error: float, hold: bool = False) -> float:
         if not math.isfinite(error):
             return self.output
-        kp, ki, limit = self.kp, self.ki, self.limit
+        ki, limit = self.ki, self.limit
+        proportional = self.proportional(error)
         updated = self.integral + error * self.dt
-        raw = -(kp * error + ki * updated)
+        raw = -(proportional + ki * updated)
         saturated = abs(raw) > limit and math.copysign(1.0, raw) == math.copysign(1.0, -error)
         if hold or saturated:
-            raw = -(kp * error + ki * self.integral)
+            raw = -(proportional + ki * self.integral)
         else:
             self.integral = updated
         self.output = min(max(raw, -limit), limit)
@@ -116,8 +136,9 @@ class PiPostureLaw(PostureLaw):
 
     def __init__(self, tilt_kp: float, tilt_ki: float, height_kp: float, height_ki: float, max_tilt: float,
                  max_height: float, dt: float):
-        self.roll = PiLoop(tilt_kp, tilt_ki, dt, max_tilt)
-        self.pitch = PiLoop(tilt_kp, tilt_ki, dt, max_tilt)
+        large = (LARGE_TILT_ERROR, LARGE_TILT_KP)
+        self.roll = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, *large)
+        self.pitch = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, *large)
         self.height = PiLoop(height_kp, height_ki, dt, max_height)
 
     def update(self, t: float, measurement: PostureMeasurement, estimate: Estimate | None,

@@ -18,9 +18,10 @@ from testbed.runtime import config
 from testbed.model.errors import ConfigError, PluginFailure
 from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist, walk_plane
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
-from testbed.control.posture import (POSTURE_LAWS, PiLoop, PiPostureLaw, PostureCorrection, PostureMeasurement,
-                                     body_frame_targets, checked_correction, correction_rotation, gait_frame_positions,
-                                     gait_frame_tilt, kinematic_height, tilted_targets, untilted_positions)
+from testbed.control.posture import (LARGE_TILT_ERROR, LARGE_TILT_KP, POSTURE_LAWS, PiLoop, PiPostureLaw,
+                                     PostureCorrection, PostureMeasurement, body_frame_targets, checked_correction,
+                                     correction_rotation, gait_frame_positions, gait_frame_tilt, kinematic_height,
+                                     tilted_targets, untilted_positions)
 from testbed.runtime.runner import build_parts, run
 
 CFG = config.load()
@@ -61,7 +62,8 @@ def test_pi_loop_holds_on_nan_and_when_told_to():
 def test_the_pi_law_runs_one_loop_per_axis_and_keeps_the_height_without_a_measurement():
     law = PiPostureLaw.from_config(CFG)
     loops = [PiLoop(CFG.posture.tilt_kp, CFG.posture.tilt_ki, CFG.run.time_step,
-                    math.radians(CFG.posture.max_tilt_correction_deg)) for _ in range(2)]
+                    math.radians(CFG.posture.max_tilt_correction_deg), LARGE_TILT_ERROR, LARGE_TILT_KP)
+             for _ in range(2)]
     height = PiLoop(CFG.posture.height_kp, CFG.posture.height_ki, CFG.run.time_step, CFG.posture.max_height_correction)
     rng = np.random.default_rng(1)
     for k in range(500):
@@ -190,6 +192,46 @@ def test_designed_loops_have_the_required_margins(axis):
     report = analyse(CFG, axis)
     assert 0.8 < report.plant.gain < 1.2 and 0.005 < report.plant.time_constant < 0.05
     assert report.gain_margin_db >= 6.0 and report.phase_margin_deg >= 45.0
+    if axis != "height":
+        # beyond LARGE_TILT_ERROR the tilt loops' proportional gain is LARGE_TILT_KP: margins there too
+        from testbed.tools.posture_design import margins, pi_controller
+        dt = CFG.run.time_step
+        gain_margin, phase_margin, _, _ = margins(pi_controller(LARGE_TILT_KP, CFG.posture.tilt_ki, dt)
+                                                  * report.plant.discrete(dt))
+        assert 20.0 * math.log10(gain_margin) >= 6.0 and phase_margin >= 45.0
+
+
+def test_pi_loop_answers_the_part_of_an_error_beyond_large_error_with_large_kp():
+    loop = PiLoop(kp=0.5, ki=0.0, dt=DT, limit=1.0, large_error=0.01, large_kp=3.0)
+    assert loop.update(0.004) == pytest.approx(-0.002)              # within: kp e
+    assert loop.update(0.03) == pytest.approx(-(0.5 * 0.03 + 2.5 * 0.02))
+    assert loop.update(-0.03) == pytest.approx(0.5 * 0.03 + 2.5 * 0.02)
+    assert PiLoop(kp=0.5, ki=0.0, dt=DT, limit=1.0).update(0.03) == pytest.approx(-0.015)   # no large_kp: linear
+
+
+def slide_on_the_identified_plant(loop: PiLoop) -> tuple[float, float]:
+    """(peak, final) true tilt, deg, of the identified tilt plant (docs/control.md: unit gain,
+    15 ms lag, 1 ms dead time) under `loop` while a foot slides off an edge's corner: 5 deg of
+    tilt over 80 ms, from 50 ms on, 0.4 s in all."""
+    turned, pending, peak = 0.0, [0.0], 0.0
+    for k in range(400):
+        slide = math.radians(5.0) * min(max((k * DT - 0.05) / 0.08, 0.0), 1.0)
+        tilt = slide + turned
+        peak = max(peak, abs(tilt))
+        pending.append(loop.update(tilt))
+        turned += (pending.pop(0) - turned) * DT / 0.015
+    return math.degrees(peak), math.degrees(tilt)
+
+
+def test_the_tilt_loops_catch_a_slide_off_a_corner_with_their_large_error_gain():
+    posture = CFG.posture
+    limit = math.radians(posture.max_tilt_correction_deg)
+    linear = slide_on_the_identified_plant(PiLoop(posture.tilt_kp, posture.tilt_ki, DT, limit))
+    law = PiPostureLaw.from_config(CFG).roll
+    assert (law.large_error, law.large_kp) == (LARGE_TILT_ERROR, LARGE_TILT_KP) == (math.radians(0.2), 3.0)
+    caught = slide_on_the_identified_plant(law)
+    assert linear[0] > 2.0 and caught[0] < 1.3              # deg: 2.08 and 1.20
+    assert abs(linear[1]) < 0.2 and abs(caught[1]) < 0.2      # both back within 0.2 deg by 0.4 s
 
 
 def test_posture_needs_an_attitude_estimator():
