@@ -69,6 +69,8 @@ class PostureConfig:
     law: str                # a registered posture law (`pi`) or MODULE:CLASS
     tilt_kp: float
     tilt_ki: float
+    tilt_large_error_deg: float
+    tilt_large_kp: float
     height_kp: float
     height_ki: float
     max_tilt_correction_deg: float
@@ -89,7 +91,9 @@ class PostureConfig:
 
     def __post_init__(self) -> None:
         POSTURE_LAWS.check_spec(self.law)
-        non_negative("posture gains", self.tilt_kp, self.tilt_ki, self.height_kp, self.height_ki)
+        non_negative("posture gains", self.tilt_kp, self.tilt_ki, self.tilt_large_kp, self.height_kp, self.height_ki)
+        require(0 <= self.tilt_large_error_deg < self.max_tilt_correction_deg,
+                f"posture.tilt_large_error_deg must lie in [0, max_tilt_correction_deg), got {self.tilt_large_error_deg}")
         require(0 < self.max_tilt_correction_deg <= 30,
                  f"posture.max_tilt_correction_deg must lie in (0, 30], got {self.max_tilt_correction_deg}")
         require(0 < self.max_height_correction <= 0.08,

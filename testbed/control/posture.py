@@ -62,12 +62,6 @@ class PostureLaw(abc.ABC):
         which kept its last joint angles (a law with integrators stops them, anti-windup)."""
 
 
-# The tilt loops' answer to a slide: the part of a tilt error beyond LARGE_TILT_ERROR (rad) has the
-# proportional gain LARGE_TILT_KP (PiLoop). Within it, the walk's own errors (0.1-0.3 deg RMS,
-# docs/results.md), the loops are the linear design of docs/control.md.
-LARGE_TILT_ERROR = math.radians(0.2)
-LARGE_TILT_KP = 3.0
-
 POSTURE_LAWS = Registry.of_subclasses("posture law", "posture_laws", PostureLaw)
 
 
@@ -126,19 +120,23 @@ class PiLoop:
 
 
 class PiPostureLaw(PostureLaw):
-    """The built-in law (`pi`): a PI loop on roll, one on pitch, one on height (`[posture]` gains)."""
+    """The built-in law (`pi`): a PI loop on roll, one on pitch, one on height (`[posture]` gains).
+    The tilt loops answer the part of an error beyond `tilt_large_error` (rad) with `tilt_large_kp`
+    (`PiLoop`); within it, where the walk's own errors stay, they are the linear design of
+    docs/control.md."""
 
     @classmethod
     def from_config(cls, config) -> "PiPostureLaw":
         posture = config.posture
         return cls(posture.tilt_kp, posture.tilt_ki, posture.height_kp, posture.height_ki,
-                   math.radians(posture.max_tilt_correction_deg), posture.max_height_correction, config.run.time_step)
+                   math.radians(posture.max_tilt_correction_deg), posture.max_height_correction, config.run.time_step,
+                   tilt_large_error=math.radians(posture.tilt_large_error_deg), tilt_large_kp=posture.tilt_large_kp)
 
     def __init__(self, tilt_kp: float, tilt_ki: float, height_kp: float, height_ki: float, max_tilt: float,
-                 max_height: float, dt: float):
-        large = (LARGE_TILT_ERROR, LARGE_TILT_KP)
-        self.roll = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, *large)
-        self.pitch = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, *large)
+                 max_height: float, dt: float, *, tilt_large_error: float = math.inf, tilt_large_kp: float | None = None):
+        large = {"large_error": tilt_large_error, "large_kp": tilt_large_kp}
+        self.roll = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, **large)
+        self.pitch = PiLoop(tilt_kp, tilt_ki, dt, max_tilt, **large)
         self.height = PiLoop(height_kp, height_ki, dt, max_height)
 
     def update(self, t: float, measurement: PostureMeasurement, estimate: Estimate | None,

@@ -39,6 +39,8 @@ def test_user_file_overrides_a_subset(tmp_path):
     ({"terrain": {"slope_deg": 60.0}}, "slope_deg"),
     ({"contact": {"friction": -0.1}}, "friction"),
     ({"contact": {"stiffness": "hard"}}, "must be a number"),
+    ({"posture": {"tilt_large_kp": -1.0}}, "posture gains"),
+    ({"posture": {"tilt_large_error_deg": 15.0}}, "posture.tilt_large_error_deg"),
 ])
 def test_bad_values_are_rejected_with_their_name(overrides, message):
     with pytest.raises(ConfigError, match=message):

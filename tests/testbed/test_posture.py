@@ -18,7 +18,7 @@ from testbed.runtime import config
 from testbed.model.errors import ConfigError, PluginFailure
 from testbed.control.gait import GaitGenerator, TerrainAdaptation, Twist, walk_plane
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
-from testbed.control.posture import (LARGE_TILT_ERROR, LARGE_TILT_KP, POSTURE_LAWS, PiLoop, PiPostureLaw,
+from testbed.control.posture import (POSTURE_LAWS, PiLoop, PiPostureLaw,
                                      PostureCorrection, PostureMeasurement, body_frame_targets, checked_correction,
                                      correction_rotation, gait_frame_positions, gait_frame_tilt, kinematic_height,
                                      tilted_targets, untilted_positions)
@@ -62,7 +62,8 @@ def test_pi_loop_holds_on_nan_and_when_told_to():
 def test_the_pi_law_runs_one_loop_per_axis_and_keeps_the_height_without_a_measurement():
     law = PiPostureLaw.from_config(CFG)
     loops = [PiLoop(CFG.posture.tilt_kp, CFG.posture.tilt_ki, CFG.run.time_step,
-                    math.radians(CFG.posture.max_tilt_correction_deg), LARGE_TILT_ERROR, LARGE_TILT_KP)
+                    math.radians(CFG.posture.max_tilt_correction_deg), math.radians(CFG.posture.tilt_large_error_deg),
+                    CFG.posture.tilt_large_kp)
              for _ in range(2)]
     height = PiLoop(CFG.posture.height_kp, CFG.posture.height_ki, CFG.run.time_step, CFG.posture.max_height_correction)
     rng = np.random.default_rng(1)
@@ -193,10 +194,10 @@ def test_designed_loops_have_the_required_margins(axis):
     assert 0.8 < report.plant.gain < 1.2 and 0.005 < report.plant.time_constant < 0.05
     assert report.gain_margin_db >= 6.0 and report.phase_margin_deg >= 45.0
     if axis != "height":
-        # beyond LARGE_TILT_ERROR the tilt loops' proportional gain is LARGE_TILT_KP: margins there too
+        # beyond tilt_large_error_deg the tilt loops' proportional gain is tilt_large_kp: margins there too
         from testbed.tools.posture_design import margins, pi_controller
         dt = CFG.run.time_step
-        gain_margin, phase_margin, _, _ = margins(pi_controller(LARGE_TILT_KP, CFG.posture.tilt_ki, dt)
+        gain_margin, phase_margin, _, _ = margins(pi_controller(CFG.posture.tilt_large_kp, CFG.posture.tilt_ki, dt)
                                                   * report.plant.discrete(dt))
         assert 20.0 * math.log10(gain_margin) >= 6.0 and phase_margin >= 45.0
 
@@ -228,7 +229,7 @@ def test_the_tilt_loops_catch_a_slide_off_a_corner_with_their_large_error_gain()
     limit = math.radians(posture.max_tilt_correction_deg)
     linear = slide_on_the_identified_plant(PiLoop(posture.tilt_kp, posture.tilt_ki, DT, limit))
     law = PiPostureLaw.from_config(CFG).roll
-    assert (law.large_error, law.large_kp) == (LARGE_TILT_ERROR, LARGE_TILT_KP) == (math.radians(0.2), 3.0)
+    assert (law.large_error, law.large_kp) == (math.radians(posture.tilt_large_error_deg), posture.tilt_large_kp)
     caught = slide_on_the_identified_plant(law)
     assert linear[0] > 2.0 and caught[0] < 1.3              # deg: 2.08 and 1.20
     assert abs(linear[1]) < 0.2 and abs(caught[1]) < 0.2      # both back within 0.2 deg by 0.4 s
