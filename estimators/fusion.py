@@ -365,12 +365,12 @@ class FusionEstimator(Estimator):
         # White accelerometer noise averaged over the window, and what a still body still shakes.
         self._still_variance = params.accel_noise_density**2 / params.still_window + params.still_force_std**2
         # The same for the gyro. Until `startup_time` (s) the robot stands on planted feet and does
-        # not turn about its z axis (the calibration poses tilt it about x and y): a still window's
-        # mean z reading is then the z bias, which nothing else measures as directly.
+        # not turn about its z axis (the calibration poses tilt it about x and y): the mean z reading
+        # of a window in which the body does not turn is then the z bias, which nothing else
+        # measures as directly. Such a window needs no force test (the tilt's still windows do):
+        # the accelerometer's noise over an interval (0.055 m/s^2 on the consumer part) fails it
+        # in most windows.
         self._still_rate_variance = params.gyro_noise_density**2 / params.still_window + params.still_rate_std**2
-        # Those windows need the body not to turn, not its specific force to hold: the
-        # accelerometer's noise over an interval (0.055 m/s^2 on the consumer part) breaks the
-        # force test of most windows, which the tilt needs and the z bias does not.
         self.unturned = StillWindow(params.still_window, math.radians(params.still_max_rate_dps), math.inf)
         self.stands_until = startup_time
         self.terrain = TerrainFilter(terrain)
