@@ -33,6 +33,7 @@ class GaitConfig:
     calibration_tilt_deg: float
     calibration_rate_dps: float
     calibration_hold_time: float
+    level_hold_time: float
 
     def __post_init__(self) -> None:
         finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
@@ -52,7 +53,7 @@ class GaitConfig:
                  f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
         require(math.isfinite(self.calibration_tilt_deg) and 0 <= self.calibration_tilt_deg <= 20,
                  f"gait.calibration_tilt_deg must lie in [0, 20], got {self.calibration_tilt_deg}")
-        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time)
+        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time, self.level_hold_time)
 
     @property
     def startup_time(self) -> float:

@@ -32,12 +32,13 @@ class CalibrationPoses:
     still: float        # s standing still first
     tilt: float         # rad
     rate: float         # rad/s, mean turn rate of a move from one pose to the next
-    hold: float         # s at each pose
+    hold: float         # s at each tilted pose
+    level_hold: float   # s level after the poses, before the walk
 
     @classmethod
     def from_gait(cls, gait) -> "CalibrationPoses":
         return cls(gait.still_time, math.radians(gait.calibration_tilt_deg), math.radians(gait.calibration_rate_dps),
-                   gait.calibration_hold_time)
+                   gait.calibration_hold_time, gait.level_hold_time)
 
     @cached_property
     def _moves(self) -> list[tuple[float, float, tuple[float, float], tuple[float, float]]]:
@@ -62,7 +63,7 @@ class CalibrationPoses:
         if self.tilt == 0.0:
             return self.still
         start, duration, _, _ = self._moves[-1]
-        return start + duration + self.hold
+        return start + duration + self.level_hold
 
     def rise(self, t: float) -> float:
         """Share (0 to 1) at time t of the body's rise to its stance height: over the first move of

@@ -18,7 +18,7 @@ TILT = math.radians(12.0)
 
 @pytest.fixture(scope="module")
 def poses() -> CalibrationPoses:
-    return CalibrationPoses(still=0.3, tilt=TILT, rate=math.radians(100.0), hold=0.2)
+    return CalibrationPoses(still=0.3, tilt=TILT, rate=math.radians(100.0), hold=0.2, level_hold=0.2)
 
 
 def test_minimum_jerk_starts_and_ends_at_rest():
@@ -42,8 +42,16 @@ def test_schedule_visits_every_pose_and_ends_level(poses):
     assert np.max(np.abs(np.diff(tilts, axis=0))) <= 1.875 * math.radians(100.0) * 1e-3 * 1.01
 
 
+def test_the_level_hold_only_lengthens_the_end(poses):
+    longer = CalibrationPoses(still=0.3, tilt=TILT, rate=math.radians(100.0), hold=0.2, level_hold=2.0)
+    assert longer.end == pytest.approx(poses.end + 1.8)
+    t = np.arange(0.0, longer.end + 0.1, 1e-3)
+    assert [longer.body_tilt(x) for x in t[t < poses.end]] == [poses.body_tilt(x) for x in t[t < poses.end]]
+    assert all(longer.body_tilt(x) == (0.0, 0.0) for x in t[t >= poses.end - 0.2])
+
+
 def test_no_tilt_means_no_poses():
-    poses = CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2)
+    poses = CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2, level_hold=0.2)
     assert poses.end == 0.5 and poses.body_tilt(0.7) == (0.0, 0.0)
 
 
@@ -70,7 +78,7 @@ def test_the_rise_to_stance_height_takes_the_first_move(poses):
     rise = np.array([poses.rise(x) for x in t])
     assert np.all(rise[t <= start] == 0.0) and np.allclose(rise[t >= start + duration], 1.0, rtol=0.0, atol=1e-9)
     assert np.all(np.diff(rise) >= 0.0)
-    assert CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2).rise(0.5) == 1.0
+    assert CalibrationPoses(still=0.5, tilt=0.0, rate=1.0, hold=0.2, level_hold=0.2).rise(0.5) == 1.0
 
 
 def test_a_body_started_low_on_rough_ground_rises_to_its_stance_height_before_walking():
@@ -91,7 +99,8 @@ def test_a_body_started_low_on_rough_ground_rises_to_its_stance_height_before_wa
 
 
 @pytest.mark.parametrize("key, value", [("calibration_tilt_deg", 25.0), ("calibration_tilt_deg", -1.0),
-                                        ("calibration_rate_dps", 0.0), ("calibration_hold_time", -0.1)])
+                                        ("calibration_rate_dps", 0.0), ("calibration_hold_time", -0.1),
+                                        ("level_hold_time", 0.0)])
 def test_bad_calibration_settings_are_refused(key, value):
     with pytest.raises(ConfigError, match="calibration"):
         config_module.load().replace(gait={key: value})
