@@ -99,7 +99,7 @@ CONSUMER_ACCEL_NOISE = 3.923e-3   # m/s^2/sqrt(Hz): the consumer preset's part, 
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
 def test_the_z_bias_is_read_while_standing(estimator, accel_noise):
     # Through the start-up the body stands and never turns about z: the windows' mean z reading is
-    # the z bias, to the gyro's white noise over the windows' ~1 s (0.25 mrad/s). The feet alone
+    # the z bias, to the gyro's white noise over the windows' ~2.5 s (0.16 mrad/s). The feet alone
     # leave it at 1-1.5 mrad/s. The poses' tilt corrections (the gyro's 1 % scale and cross-axis
     # errors over their turns) raise no bias step. A noisy accelerometer, which fails the still
     # test's force limit in most windows, does not keep the gyro's windows out.
