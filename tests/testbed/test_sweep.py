@@ -79,6 +79,15 @@ def wait_for(condition, timeout: float, what: str, process: subprocess.Popen | N
     pytest.fail(f"timed out waiting for {what}")
 
 
+def scheduler_address(scheduler_file: Path) -> str | None:
+    """The address in a dask scheduler file, or None until the scheduler has written all of it
+    (the file appears before its contents)."""
+    try:
+        return json.loads(scheduler_file.read_text())["address"]
+    except (FileNotFoundError, json.JSONDecodeError, KeyError):
+        return None
+
+
 def stop(processes: list[subprocess.Popen]) -> None:
     for process in processes:
         if process.poll() is None:
@@ -268,8 +277,7 @@ def dask_cluster(tmp_path, environment: dict):
         scheduler_file = logs / "scheduler.json"
         start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--scheduler-file", str(scheduler_file))
-        wait_for(scheduler_file.exists, 60, "the dask scheduler", processes[0])
-        address = json.loads(scheduler_file.read_text())["address"]
+        address = wait_for(lambda: scheduler_address(scheduler_file), 60, "the dask scheduler", processes[0])
         workers = [start(f"worker{i}", "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
                          "--host", "127.0.0.1", "--name", f"w{i}") for i in range(2)]
         with Client(address, timeout=30, set_as_default=False) as client:
