@@ -27,10 +27,10 @@ def test_run_writes_the_foundation_metrics(tmp_path, capsys):
 
 def test_walking_run_reports_the_gait_metrics(tmp_path):
     metrics = tmp_path / "m.json"
-    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "5.8", "--metrics", str(metrics),
+    assert main(["run", "--gait", "tripod", "--speed", "0.1", "--duration", "4.5", "--metrics", str(metrics),
                  "--out", str(tmp_path / "r.mcap")]) == 0
     data = json.loads(metrics.read_text())
-    # 3.5 s start-up (still, calibration poses, level hold), 1 s ramp, then 0.1 m/s: about 0.18 m in 5.8 s
+    # 2.2 s start-up (still, calibration poses, level hold), 1 s ramp, then 0.1 m/s: about 0.18 m in 4.5 s
     assert 0.13 < data["distance_m"] < 0.23
     assert 0.07 < data["mean_speed_mps"] < 0.09         # over the 2.3 s after the start-up
     assert data["min_stability_margin_m"] > 0.03
