@@ -93,6 +93,24 @@ GYRO_TURN_ON_STD = 0.035    # rad/s: 2 deg/s per axis, the filter's prior (gyro_
 CONSUMER_ACCEL_NOISE = 3.923e-3   # m/s^2/sqrt(Hz): the consumer preset's part, 0.055 m/s^2 over a 5 ms interval
 
 
+def replay_the_standing_start_up(estimator: str, **overrides):
+    """Stand through the start-up (seed 7, the gyro's turn-on spread GYRO_TURN_ON_STD, config
+    `overrides` on top); the estimator replayed over the start-up's samples, and the gyro's true z
+    turn-on bias (rad/s)."""
+    config = config_module.load().replace(run={"gait": "stand", "seed": 7, "estimator": estimator},
+                                          sensors={"imu": {"gyro": {"turn_on_bias": GYRO_TURN_ON_STD}}})
+    config = config.replace(**overrides)
+    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
+    collect = Collect()
+    run(config, collect)
+    true_bias = SensorSuite.from_config(config).sensor(Imu).channels.triads[1].turn_on_bias
+    replay = make_estimator(estimator, config)
+    for sample in (sample for tick in collect.ticks for sample in tick.samples):
+        if sample.t <= config.gait.startup_time:
+            replay.update(sample)
+    return replay, float(true_bias[2])
+
+
 @pytest.mark.parametrize("accel_noise", [None, CONSUMER_ACCEL_NOISE], ids=["default accelerometer", "consumer accelerometer"])
 @pytest.mark.parametrize("estimator", ["ekf", "ukf"])
 def test_the_z_bias_is_read_while_standing(estimator, accel_noise):
@@ -103,22 +121,12 @@ def test_the_z_bias_is_read_while_standing(estimator, accel_noise):
     # test's force limit in most windows, does not keep the gyro's windows out.
     accel = {} if accel_noise is None else {"noise_density": accel_noise}
     belief = {} if accel_noise is None else {"accel_noise_density": accel_noise}
-    config = config_module.load().replace(
-        run={"gait": "stand", "seed": 7, "estimator": estimator},
-        sensors={"imu": {"gyro": {"turn_on_bias": GYRO_TURN_ON_STD}, "accel": accel}},
-        estimators={"ekf": belief})
-    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
-    collect = Collect()
-    run(config, collect)
-    true_bias = SensorSuite.from_config(config).sensor(Imu).channels.triads[1].turn_on_bias
-    assert abs(true_bias[2]) > 0.01                                   # seed 7: a bias worth reading
-    replay = make_estimator(estimator, config)
-    for sample in (sample for tick in collect.ticks for sample in tick.samples):
-        if sample.t <= config.gait.startup_time:
-            replay.update(sample)
+    replay, true_bias = replay_the_standing_start_up(estimator, sensors={"imu": {"accel": accel}},
+                                                     estimators={"ekf": belief})
+    assert abs(true_bias) > 0.01                                      # seed 7: a bias worth reading
     std = math.sqrt(replay.P[BIAS, BIAS][2, 2])
     assert std < 4e-4
-    assert abs(replay.state.bias[2] - true_bias[2]) < 3.0 * std
+    assert abs(replay.state.bias[2] - true_bias) < 3.0 * std
     assert replay.bias_steps.detections == 0
 
 
@@ -126,17 +134,7 @@ def test_the_z_bias_is_read_while_standing(estimator, accel_noise):
 def test_a_longer_level_hold_reads_the_z_bias_better(hold, largest_std):
     # gait.level_hold_time: the body stands level after the poses, about 20 more windows a second
     # (seed 7: sigma 0.255 mrad/s with 0.2 s, 0.164 with 1.5 s).
-    config = config_module.load().replace(run={"gait": "stand", "seed": 7, "estimator": "ekf"},
-                                          sensors={"imu": {"gyro": {"turn_on_bias": GYRO_TURN_ON_STD}}},
-                                          gait={"level_hold_time": hold})
-    config = config.replace(run={"duration": config.gait.startup_time + 0.1})
-    collect = Collect()
-    run(config, collect)
-    true_bias = SensorSuite.from_config(config).sensor(Imu).channels.triads[1].turn_on_bias
-    replay = make_estimator("ekf", config)
-    for sample in (sample for tick in collect.ticks for sample in tick.samples):
-        if sample.t <= config.gait.startup_time:
-            replay.update(sample)
+    replay, true_bias = replay_the_standing_start_up("ekf", gait={"level_hold_time": hold})
     std = math.sqrt(replay.P[BIAS, BIAS][2, 2])
     assert 0.8 * largest_std < std < largest_std
-    assert abs(replay.state.bias[2] - true_bias[2]) < 3.0 * std
+    assert abs(replay.state.bias[2] - true_bias) < 3.0 * std
