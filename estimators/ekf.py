@@ -204,7 +204,7 @@ class EkfEstimator(FusionEstimator):
     def from_config(cls, config) -> "EkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, LegGeometry.from_config(config.robot),
                    config.robot.foot_radius, config.run.gravity, imu_rotation(config), imu_position(config),
-                   config.gait.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
+                   config.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
                    config.sensors.imu.accel.range)
 
     def _predict(self) -> None:

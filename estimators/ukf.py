@@ -111,7 +111,7 @@ class UkfEstimator(FusionEstimator):
     def from_config(cls, config) -> "UkfEstimator":
         return cls(config.estimators.ekf, config.estimators.terrain, config.estimators.ukf,
                    LegGeometry.from_config(config.robot), config.robot.foot_radius, config.run.gravity,
-                   imu_rotation(config), imu_position(config), config.gait.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
+                   imu_rotation(config), imu_position(config), config.startup_time, config.sensors.accel_array.member_positions, config.sensors.imu.rate,
                    config.sensors.imu.accel.range)
 
     @property

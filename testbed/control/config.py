@@ -33,7 +33,7 @@ class GaitConfig:
     calibration_tilt_deg: float
     calibration_rate_dps: float
     calibration_hold_time: float
-    level_hold_time: float
+    level_hold_time: float | str     # s, or "auto" (testbed/control/startup.py, level_hold)
 
     def __post_init__(self) -> None:
         finite("gait speeds", self.speed, self.lateral_speed, self.turn_rate)
@@ -53,12 +53,26 @@ class GaitConfig:
                  f"gait.still_time must lie in [0.05, 10] s, got {self.still_time}")
         require(math.isfinite(self.calibration_tilt_deg) and 0 <= self.calibration_tilt_deg <= 20,
                  f"gait.calibration_tilt_deg must lie in [0, 20], got {self.calibration_tilt_deg}")
-        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time, self.level_hold_time)
+        positive("gait calibration timing", self.calibration_rate_dps, self.calibration_hold_time)
+        if isinstance(self.level_hold_time, str):
+            require(self.level_hold_time == "auto",
+                     f"gait.level_hold_time must be a number of seconds or \"auto\", got {self.level_hold_time!r}")
+        else:
+            positive("gait.level_hold_time (the calibration's level hold)", self.level_hold_time)
 
-    @property
-    def startup_time(self) -> float:
-        """s from the start to the first step: standing still, then the calibration poses."""
-        return CalibrationPoses.from_gait(self).end
+    def startup_time(self, duration: float) -> float:
+        """s from the start to the first step in a run of `duration` (s): standing still, then the
+        calibration poses."""
+        return CalibrationPoses.from_gait(self, duration).end
+
+    def duration_to_walk(self, walking: float) -> float:
+        """s of a run whose start-up leaves `walking` s: the fixed point of duration = start-up +
+        walking (an "auto" level hold grows with the run, by at most a twentieth of it, so a few
+        substitutions settle it)."""
+        duration = walking
+        for _ in range(4):
+            duration = walking + self.startup_time(duration)
+        return duration
 
     def period(self, gait: str, default: float = 1.0) -> float:
         """s per cycle of the named gait: the `<gait>_period` key, else `default` (the gait's own)."""

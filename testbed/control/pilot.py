@@ -81,7 +81,7 @@ class Pilot(Controller):
         self.latest_estimate = None
         self.odometry = LegOdometry(geometry, config.robot.foot_radius)
         self.heading = GyroHeading(config.gait.still_time, config.sensors.imu.body_from_sensor)
-        self.startup = CalibrationPoses.from_gait(config.gait)
+        self.startup = CalibrationPoses.from_gait(config.gait, config.run.duration)
         self.startup_time = self.startup.end
         self.heading_reference = 0.0
         self.walker = TargetWalker(config.gait, tuple(config.gait.target)) if config.gait.target else None

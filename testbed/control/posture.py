@@ -49,7 +49,7 @@ class PostureLaw(abc.ABC):
 
     A class method `from_config(config)` receives the run's `Config` when present; otherwise the
     class is built with no arguments. The pilot calls `update` once per control tick
-    (`run.time_step`) from the end of the start-up on (`gait.startup_time`), whenever the
+    (`run.time_step`) from the end of the start-up on (`Config.startup_time`), whenever the
     estimator has given an estimate; before that, and between updates, the last correction holds
     (zero at first). The pilot keeps the gait, its terrain adaptation and the inverse kinematics."""
 

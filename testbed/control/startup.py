@@ -20,6 +20,21 @@ import numpy as np
 # (roll, pitch) in units of the tilt, visited in this order after the still start.
 POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
 
+# `gait.level_hold_time = "auto"`: the level hold is this share of the run, within these bounds (s).
+# The yaw a z gyro bias error leaves grows with the time walked, its reading's noise falls with the
+# square root of the time held (docs/estimators.md, "The level hold"); a short run keeps its walk.
+AUTO_LEVEL_HOLD_SHARE = 0.05
+AUTO_LEVEL_HOLD_RANGE = (0.2, 1.5)
+
+
+def level_hold(setting: float | str, duration: float) -> float:
+    """s the robot stands level after the poses: `gait.level_hold_time`, or with "auto" a share of
+    the run's duration (s)."""
+    if setting != "auto":
+        return float(setting)
+    shortest, longest = AUTO_LEVEL_HOLD_RANGE
+    return min(max(AUTO_LEVEL_HOLD_SHARE * duration, shortest), longest)
+
 
 def minimum_jerk(fraction: float) -> float:
     """0 -> 1 with zero velocity and acceleration at both ends (Flash and Hogan 1985)."""
@@ -36,9 +51,10 @@ class CalibrationPoses:
     level_hold: float   # s level after the poses, before the walk
 
     @classmethod
-    def from_gait(cls, gait) -> "CalibrationPoses":
+    def from_gait(cls, gait, duration: float) -> "CalibrationPoses":
+        """The poses of a `[gait]` config in a run of `duration` (s)."""
         return cls(gait.still_time, math.radians(gait.calibration_tilt_deg), math.radians(gait.calibration_rate_dps),
-                   gait.calibration_hold_time, gait.level_hold_time)
+                   gait.calibration_hold_time, level_hold(gait.level_hold_time, duration))
 
     @cached_property
     def _moves(self) -> list[tuple[float, float, tuple[float, float], tuple[float, float]]]:

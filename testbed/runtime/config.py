@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import types
 import typing
 from dataclasses import dataclass
 from importlib import resources
@@ -119,6 +120,11 @@ class Config:
                  f"terrain.rough_amplitude {amplitude:g} m is more than the feet can clear or reach down: at most "
                  f"{limits.rough_amplitude:g} m (half posture.max_swing_height, posture.search_depth)")
 
+    @property
+    def startup_time(self) -> float:
+        """s from the start to the first step (`GaitConfig.startup_time` for this run's duration)."""
+        return self.gait.startup_time(self.run.duration)
+
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))
 
@@ -159,6 +165,8 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             raise ConfigError(f"config key '{where}' must be a table")
         return _build(hint, value, where + ".")
     origin = typing.get_origin(hint)
+    if origin is types.UnionType:
+        return _convert_either(value, typing.get_args(hint), where)
     if origin is tuple:
         (item_hint, _ellipsis) = typing.get_args(hint)
         if not isinstance(value, (list, tuple)):
@@ -181,6 +189,18 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             raise ConfigError(f"config key '{where}' must be a string, got {value!r}")
         return value
     raise TypeError(f"unsupported config type {hint} at {where}")
+
+
+def _convert_either(value: Any, hints: tuple[Any, ...], where: str) -> Any:
+    """A value of the first of `hints` (e.g. float | str) that takes it."""
+    for hint in hints:
+        try:
+            return _convert(value, hint, where)
+        except ConfigError:
+            continue
+    names = " or ".join({float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(hint, str(hint))
+                        for hint in hints)
+    raise ConfigError(f"config key '{where}' must be {names}, got {value!r}")
 
 
 def _build(cls: type, data: dict[str, Any], path: str = "") -> Any:

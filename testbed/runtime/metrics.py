@@ -82,7 +82,7 @@ class RunMetrics:
     def _mean_speed(self, distance: float, sim_time: float) -> float | None:
         """Over the time the robot was commanded to walk: after the start-up (still, then the
         calibration poses), ramp included."""
-        walking = sim_time - self.config.gait.startup_time
+        walking = sim_time - self.config.startup_time
         return distance / walking if walking > 0 and self.config.run.gait != "stand" else None
 
     def summary(self, sim_time: float, wall_s: float, ik_limited_ticks: int) -> dict:
@@ -125,7 +125,7 @@ class PostureSums:
     def __init__(self, config: Config):
         self.stance_height = config.robot.stance_height
         self.foot_radius = config.robot.foot_radius
-        self.skip_until = max(POSTURE_SKIP, config.gait.startup_time)
+        self.skip_until = max(POSTURE_SKIP, config.startup_time)
         self.count = 0
         self.tilt_squares = 0.0
         self.tilt_max = -np.inf

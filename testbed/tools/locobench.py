@@ -238,7 +238,7 @@ def course_case(layout: str, index: int, gait: str, contact: str, max_duration: 
     seed = int(generator(COURSES, layout, index, "run").integers(2**31))
     speed = SPEEDS[gait]
     probe = config_module.load(None, {"run": {"gait": gait}, "gait": {"speed": speed}}, base=base)
-    duration = probe.gait.startup_time + probe.gait.start_ramp + DURATION_MARGIN * target_x / speed + 3.0
+    duration = probe.gait.duration_to_walk(probe.gait.start_ramp + DURATION_MARGIN * target_x / speed + 3.0)
     duration = round(min(duration, max_duration) if max_duration else duration, 1)
     overrides = {"run": {"terrain": "course", "gait": gait, "contact": contact, "seed": seed, "duration": duration},
                  "gait": {"speed": speed, "target": [target_x, 0.0]},

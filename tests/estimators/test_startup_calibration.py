@@ -26,7 +26,7 @@ def stand_and_measure(estimator: str, tilt_deg: float, seed: int = 7) -> tuple[n
         run={"gait": "stand", "seed": seed, "estimator": estimator},
         gait={"calibration_tilt_deg": tilt_deg}, sensors={"imu": {"accel": {"turn_on_bias": OFFSET_STD}}},
         estimators={"ekf": {"accel_bias_initial_std": OFFSET_STD}})     # the filter's belief matches the part
-    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
+    config = config.replace(run={"duration": config.gait.duration_to_walk(0.3)})
     collect = Collect()
     run(config, collect)
     last = collect.ticks[-1]
@@ -68,7 +68,7 @@ def stand_with_a_leaning_z_axis(estimator: str, belief: float, monkeypatch) -> t
     config = config_module.load().replace(
         run={"gait": "stand", "seed": 3, "estimator": estimator}, sensors={"imu": {"accel": perfect}},
         estimators={"ekf": {"accel_cross_axis_std": belief}})
-    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
+    config = config.replace(run={"duration": config.gait.duration_to_walk(0.3)})
     collect = Collect()
     run(config, collect)
     estimate = [tick.estimates[-1] for tick in collect.ticks if tick.estimates][-1]
@@ -100,13 +100,13 @@ def replay_the_standing_start_up(estimator: str, **overrides):
     config = config_module.load().replace(run={"gait": "stand", "seed": 7, "estimator": estimator},
                                           sensors={"imu": {"gyro": {"turn_on_bias": GYRO_TURN_ON_STD}}})
     config = config.replace(**overrides)
-    config = config.replace(run={"duration": config.gait.startup_time + 0.3})
+    config = config.replace(run={"duration": config.gait.duration_to_walk(0.3)})
     collect = Collect()
     run(config, collect)
     true_bias = SensorSuite.from_config(config).sensor(Imu).channels.triads[1].turn_on_bias
     replay = make_estimator(estimator, config)
     for sample in (sample for tick in collect.ticks for sample in tick.samples):
-        if sample.t <= config.gait.startup_time:
+        if sample.t <= config.startup_time:
             replay.update(sample)
     return replay, float(true_bias[2])
 

@@ -295,7 +295,7 @@ def run_with_law(tmp_path, law, terrain="slope", duration=None):
     (return code, stderr, metrics or None, the Recording law's log or None)."""
     (tmp_path / "my_laws.py").write_text(LAWS_MODULE)
     metrics, log = tmp_path / f"{law.replace(':', '_')}.json", tmp_path / "law.json"
-    duration = duration or CFG.gait.startup_time + 1.0
+    duration = duration or CFG.gait.duration_to_walk(1.0)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(Path(__file__).parents[2])]),
                LAW_LOG=str(log))
     result = subprocess.run([sys.executable, "-m", "testbed.tools.cli", "run", "--terrain", terrain,
@@ -313,7 +313,7 @@ def test_a_posture_law_of_ones_own_replaces_the_pi_law(tmp_path):
     code, err, rolled, log = run_with_law(tmp_path, "my_laws:Rolled", terrain="flat")
     assert code == 0, err
     assert log["calls"] == pytest.approx(1.0 / CFG.run.time_step, abs=2)      # one second after the start-up
-    assert log["first"] == pytest.approx(CFG.gait.startup_time, abs=2 * CFG.run.time_step)
+    assert log["first"] == pytest.approx(CFG.gait.startup_time(CFG.gait.duration_to_walk(1.0)), abs=2 * CFG.run.time_step)
     assert rolled["tilt_max_deg"] == pytest.approx(3.0, abs=0.5) and rolled["tilt_rms_deg"] > 2.0
     code, err, pi, _ = run_with_law(tmp_path, "pi", terrain="flat")
     assert code == 0, err

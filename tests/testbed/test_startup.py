@@ -10,7 +10,7 @@ import pytest
 from testbed.runtime import config as config_module
 from testbed.model.errors import ConfigError
 from testbed.runtime.runner import run, true_roll_pitch
-from testbed.control.startup import POSES, CalibrationPoses, minimum_jerk
+from testbed.control.startup import POSES, CalibrationPoses, level_hold, minimum_jerk
 from tests.recorders import Collect
 
 TILT = math.radians(12.0)
@@ -57,10 +57,11 @@ def test_no_tilt_means_no_poses():
 
 def test_the_poses_tilt_the_body_feet_planted():
     """In the physics: the true body reaches each pose within 0.3 deg and the feet stay within 1.5 mm (they roll)."""
-    config = config_module.load().replace(run={"gait": "stand", "duration": 2.5, "seed": 7})
-    poses = CalibrationPoses.from_gait(config.gait)
+    config = config_module.load().replace(run={"gait": "stand", "seed": 7})
+    config = config.replace(run={"duration": config.gait.duration_to_walk(0.0)})
+    poses = CalibrationPoses.from_gait(config.gait, config.run.duration)
     collect = Collect()
-    run(config.replace(run={"duration": poses.end}), collect)
+    run(config, collect)
     reached = []
     for tick in collect.ticks:
         commanded = poses.body_tilt(tick.truth.t)
@@ -88,7 +89,7 @@ def test_a_body_started_low_on_rough_ground_rises_to_its_stance_height_before_wa
     config = config_module.load(None, {"run": {"terrain": "rough", "seed": 1, "controller": "posture", "estimator": "ekf"},
                                        "terrain": {"rough_amplitude": 0.035}})
     collect = Collect()
-    metrics = run(config.replace(run={"duration": CalibrationPoses.from_gait(config.gait).end}), collect).metrics
+    metrics = run(config.replace(run={"duration": config.gait.duration_to_walk(0.0)}), collect).metrics
     assert not metrics["fell"]
     truth = collect.ticks[-1].truth
     feet = truth.foot_positions
@@ -104,3 +105,31 @@ def test_a_body_started_low_on_rough_ground_rises_to_its_stance_height_before_wa
 def test_bad_calibration_settings_are_refused(key, value):
     with pytest.raises(ConfigError, match="calibration"):
         config_module.load().replace(gait={key: value})
+
+
+@pytest.mark.parametrize("value, message", [("never", 'must be a number of seconds or "auto"'),
+                                            (True, "must be a number or a string")])
+def test_a_level_hold_that_is_neither_seconds_nor_auto_is_refused(value, message):
+    with pytest.raises(ConfigError, match=message):
+        config_module.load().replace(gait={"level_hold_time": value})
+
+
+def test_an_auto_level_hold_is_a_twentieth_of_the_run_within_its_bounds():
+    assert [level_hold("auto", duration) for duration in (2.0, 4.0, 10.0, 20.0, 30.0, 600.0)] == \
+        pytest.approx([0.2, 0.2, 0.5, 1.0, 1.5, 1.5])
+    assert level_hold(0.7, 600.0) == 0.7 and level_hold(3.0, 4.0) == 3.0      # seconds are taken as given
+
+
+def test_the_default_start_up_leaves_a_short_run_its_walk_and_holds_a_long_one_level_longer():
+    config = config_module.load()
+    assert config.gait.level_hold_time == "auto"
+    short, long = (config.replace(run={"duration": duration}) for duration in (4.0, 30.0))
+    assert short.startup_time == pytest.approx(2.19, abs=1e-3) and long.startup_time == pytest.approx(3.49, abs=1e-3)
+    assert config.replace(gait={"level_hold_time": 0.2}, run={"duration": 30.0}).startup_time == pytest.approx(2.19, abs=1e-3)
+
+
+@pytest.mark.parametrize("walking", [0.0, 1.0, 30.0, 100.0])
+def test_a_run_long_enough_to_walk_leaves_that_much_after_its_start_up(walking):
+    gait = config_module.load().gait
+    duration = gait.duration_to_walk(walking)
+    assert duration - gait.startup_time(duration) == pytest.approx(walking, abs=1e-9)

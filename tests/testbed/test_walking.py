@@ -18,4 +18,4 @@ def test_every_gait_keeps_a_positive_stability_margin(gait, contact):
     metrics = run(cfg).metrics
     assert not metrics["fell"]
     assert metrics["min_stability_margin_m"] is not None and metrics["min_stability_margin_m"] > 0.003
-    assert metrics["distance_m"] > 0.8 * SPEEDS[gait] * (5.0 - cfg.gait.startup_time - 0.5 * cfg.gait.start_ramp)
+    assert metrics["distance_m"] > 0.8 * SPEEDS[gait] * (5.0 - cfg.startup_time - 0.5 * cfg.gait.start_ramp)
