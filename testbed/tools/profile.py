@@ -45,8 +45,8 @@ STAGE_NOTES = {
     "metrics": "support polygon, stability margin, run metrics",
     "other": "run loop, fall checks",
 }
-# s simulated per timed run: `make run`'s 10 s, of which the start-up (still stand and calibration
-# poses, 2.2 s) is a fifth; a 3 s run was three quarters start-up, whose ticks cost half a walking one.
+# s simulated per timed run: `make run`'s 10 s, of which the start-up (still stand, calibration
+# poses, level hold: 2.5 s) is a quarter; a 3 s run was three quarters start-up, whose ticks cost half a walking one.
 DEFAULT_DURATION = 10.0
 MAX_DURATION = 600.0        # s
 WARMUP_DURATION = 0.05      # s simulated before anything is timed
