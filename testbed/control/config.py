@@ -61,8 +61,8 @@ class GaitConfig:
             positive("gait.level_hold_time (the calibration's level hold)", self.level_hold_time)
 
     def startup_time(self, duration: float) -> float:
-        """s from the start to the first step in a run of `duration` (s): standing still, then the
-        calibration poses."""
+        """s from the start to the first step in a run of `duration` (s): standing still, the
+        calibration poses, then the level hold."""
         return CalibrationPoses.from_gait(self, duration).end
 
     def duration_to_walk(self, walking: float) -> float:
