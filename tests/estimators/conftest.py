@@ -27,7 +27,7 @@ SYNTHETIC_BELIEFS = {"accel_bias_initial_std": 0.002, "foot_creep_accel_std": 0.
                      "foot_sink_per_newton": 0.0, "foot_shear_per_newton": 0.0}
 
 
-# The synthetic walks move from t = 0: the filters' start-up (gait.startup_time), in which the
+# The synthetic walks move from t = 0: the filters' start-up (Config.startup_time), in which the
 # robot stands and they read the gyro's z bias, is as short as the config allows.
 NO_STARTUP = {"still_time": 0.05, "calibration_tilt_deg": 0.0}
 
