@@ -128,7 +128,7 @@ def test_the_default_start_up_leaves_a_short_run_its_walk_and_holds_a_long_one_l
     assert config.replace(gait={"level_hold_time": 0.2}, run={"duration": 30.0}).startup_time == pytest.approx(2.19, abs=1e-3)
 
 
-@pytest.mark.parametrize("walking", [0.0, 1.0, 30.0, 100.0])
+@pytest.mark.parametrize("walking", [0.0, 1.0, 8.0, 15.0, 30.0, 100.0])
 def test_a_run_long_enough_to_walk_leaves_that_much_after_its_start_up(walking):
     gait = config_module.load().gait
     duration = gait.duration_to_walk(walking)
