@@ -77,6 +77,11 @@ RISER_HEIGHT = 0.01
 # Footholds the front feet stood on, remembered per side for the middle and rear feet (a ring).
 FRONT_LEGS = (0, 5)
 FOOTHOLDS = 6
+# Where each foot of a side stood at its last lift-offs (a ring, every leg's): the x-neighbours
+# around a follower's planned touch-down bracket an edge between them.
+STOOD = 12
+# m between two footholds whose heights give the ground's local slope (nearer: the same foothold)
+FOOTHOLD_SPACING = 0.01
 # m a follower's touch-down may move onto a proven foothold beyond the stride's reach allowance
 FOOTHOLD_REACH = 0.005
 # The ground's slope ahead: a line through each side's last SLOPE_FOOTHOLDS front footholds, trusted
@@ -171,7 +176,11 @@ GAIT_STATE = np.dtype([
     ("footholds", "f8", (2, FOOTHOLDS, 3)),   # per side (left, right): where its front foot stood at its
                                         # last lift-offs, gait frame, moving with the ground; x NaN: none
     ("foothold_count", "i8", 2),        # lift-offs recorded per side
-    ("aim", "i8", 6),                   # the footholds slot a middle or rear swing lands on; -1: none
+    ("stood", "f8", (2, STOOD, 3)),     # per side: where any of its feet stood at its last lift-offs,
+                                        # gait frame, moving with the ground; x NaN: none
+    ("stood_count", "i8", 2),           # lift-offs recorded per side in `stood`
+    ("aim", "i8", 6),                   # the `stood` slot a middle or rear swing lands at; -1: none
+    ("aim_offset", "f8", 6),            # m along x from that foothold to the touch-down; 0: on it
     ("swinging", "u1", 6),              # in the air
     ("scheduled", "u1", 6),             # the schedule's swings at the last step
     ("searching", "u1", 6),             # reaching down for ground the clock waits for
@@ -212,7 +221,8 @@ class GaitGenerator:
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
         record["feet"], record["liftoff"], record["search_floor"] = self.neutral, self.neutral, -np.inf
-        record["lift"], record["edge"], record["footholds"], record["aim"] = swing_height, np.nan, np.nan, -1
+        record["lift"], record["edge"], record["aim"] = swing_height, np.nan, -1
+        record["footholds"], record["stood"] = np.nan, np.nan
         self.state = GaitState(record["feet"][0], record["swinging"][0].view(bool), record["liftoff"][0])
         self.scheduled = record["scheduled"][0].view(bool)
         self.search_floor = record["search_floor"][0]
@@ -462,6 +472,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     if raises:
         _move_edges(s.edge, twist, feet, dt)
         _move_footholds(s.footholds, twist, dt)
+        _move_footholds(s.stood, twist, dt)
     if not follows_terrain:
         _settle_stance(feet, swinging, p.neutral, dt)
     in_swing = swinging & now
@@ -487,6 +498,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
     for leg in range(6):
         s.edge[leg, 1] -= shift
     s.footholds[:, :, 2] -= shift
+    s.stood[:, :, 2] -= shift
     return False, shift
 
 
@@ -644,24 +656,28 @@ def _side(leg):
 
 @njit(cache=True)
 def _record_footholds(s, lifting, stood):
-    """A front foot that lifts has stood where it is through its stance: a proven foothold for
-    the middle and rear feet of its side."""
-    for leg in FRONT_LEGS:
-        if lifting[leg]:
-            side = _side(leg)
-            slot = s.foothold_count[side] % FOOTHOLDS
-            s.footholds[side, slot] = stood[leg]
+    """A foot that lifts has stood where it is through its stance: a proven foothold for the
+    feet behind it on its side (`stood`); a front foot's also for the ground's slope (`footholds`)."""
+    for leg in range(6):
+        if not lifting[leg]:
+            continue
+        side = _side(leg)
+        s.stood[side, s.stood_count[side] % STOOD] = stood[leg]
+        s.stood_count[side] += 1
+        if leg in FRONT_LEGS:
+            s.footholds[side, s.foothold_count[side] % FOOTHOLDS] = stood[leg]
             s.foothold_count[side] += 1
 
 
 @njit(cache=True)
 def _choose_footholds(parameters, s, lifting, twist, slope):
-    """A middle or rear swing whose planned touch-down lies between two consecutive front
-    footholds of its side whose heights differ by more than RISER_HEIGHT beyond what the ground's
-    slope under the front feet explains (a step's or a block's edge lies somewhere between them,
-    not a ramp's even rise) aims at the nearer of the two, where the ground is known to hold, if
-    the legs reach it: not on an edge's corner, from which a foot slides off when it takes the
-    weight. On an even ramp the swings keep their touch-downs, moved uphill (`_shift_uphill`)."""
+    """A middle or rear swing whose planned touch-down lies between two neighbouring footholds of
+    its side (the nearest behind and ahead of it where the side's feet stood) with an edge
+    between them (`_edge_between`) aims at the nearer of the two, where the ground is known to
+    hold: on it if the legs reach it, else the reach allowance nearer to it than planned. Not on
+    an edge's corner, from which a foot slides off when it takes the weight (docs/control.md,
+    "Footholds"). On an even ramp the swings keep their touch-downs, moved uphill
+    (`_shift_uphill`)."""
     p = parameters[0]
     touchdown = _touchdown(parameters, twist)
     swing_time = (1.0 - p.duty) * p.period
@@ -670,25 +686,55 @@ def _choose_footholds(parameters, s, lifting, twist, slope):
     for leg in range(6):
         if not lifting[leg] or leg in FRONT_LEGS:
             continue
-        side = _side(leg)
+        s.aim[leg] = -1
+        stood = s.stood[_side(leg)]
+        count = min(s.stood_count[_side(leg)], STOOD)
         planned = touchdown[leg, 0]
-        count = s.foothold_count[side]
-        best, best_shift = -1, reach
-        for back in range(1, min(count, FOOTHOLDS)):
-            newer, older = (count - back) % FOOTHOLDS, (count - back - 1) % FOOTHOLDS
-            run = s.footholds[side, newer, 0] - s.footholds[side, older, 0]
-            rise = s.footholds[side, newer, 2] - s.footholds[side, older, 2]
-            if abs(rise - slope * run) <= RISER_HEIGHT:
-                continue
-            # where the two will be when the swing lands
-            ahead = _landing_x(s.footholds[side, newer], twist, swing_time)
-            behind = _landing_x(s.footholds[side, older], twist, swing_time)
-            if not behind <= planned <= ahead:
-                continue
-            for slot, x in ((newer, ahead), (older, behind)):
-                if abs(x - planned) <= best_shift:
-                    best, best_shift = slot, abs(x - planned)
-        s.aim[leg] = best
+        # the footholds nearest the touch-down, where they will be when the swing lands
+        behind, behind_x = _nearest_foothold(stood, count, twist, swing_time, planned + 1e-9, -1.0)
+        ahead, ahead_x = _nearest_foothold(stood, count, twist, swing_time, planned, 1.0)
+        if behind < 0 or ahead < 0 or not _edge_between(stood, count, twist, swing_time, behind, ahead, slope):
+            continue
+        if ahead_x - planned < planned - behind_x:
+            s.aim[leg], s.aim_offset[leg] = ahead, -max(0.0, ahead_x - planned - reach)
+        else:
+            s.aim[leg], s.aim_offset[leg] = behind, max(0.0, planned - behind_x - reach)
+
+
+@njit(cache=True)
+def _nearest_foothold(stood, count, twist, time, x, direction):
+    """The slot of the foothold nearest beyond x in `direction` (+1 ahead, -1 behind) where it
+    will be in `time`, and that x; -1 and inf when there is none."""
+    best, best_distance = -1, np.inf
+    for slot in range(count):
+        distance = direction * (_landing_x(stood[slot], twist, time) - x)
+        if 0.0 < distance < best_distance:
+            best, best_distance = slot, distance
+    return best, x + direction * best_distance
+
+
+@njit(cache=True)
+def _edge_between(stood, count, twist, time, behind, ahead, slope):
+    """Whether the rise from foothold `behind` to foothold `ahead` is an edge: more than
+    RISER_HEIGHT beyond what the ground's slope under the front feet (`slope`) explains, and
+    beyond what the ground's slope just behind and just ahead of them explains (the next foothold
+    at least FOOTHOLD_SPACING further each way; at a ramp's gradient change one of the two
+    does). With neither of those known (the first strides) the ground is not judged."""
+    behind_x = _landing_x(stood[behind], twist, time)
+    ahead_x = _landing_x(stood[ahead], twist, time)
+    run, rise = ahead_x - behind_x, stood[ahead, 2] - stood[behind, 2]
+    if abs(rise - slope * run) <= RISER_HEIGHT:
+        return False
+    judged = False
+    for end, end_x, direction in ((behind, behind_x, -1.0), (ahead, ahead_x, 1.0)):
+        outer, outer_x = _nearest_foothold(stood, count, twist, time, end_x + direction * FOOTHOLD_SPACING, direction)
+        if outer < 0:
+            continue
+        judged = True
+        local_slope = (stood[end, 2] - stood[outer, 2]) / (end_x - outer_x)
+        if abs(rise - local_slope * run) <= RISER_HEIGHT:
+            return False
+    return judged
 
 
 @njit(cache=True)
@@ -701,7 +747,7 @@ def _landing_x(point, twist, time):
 def _onto_footholds(s, touchdown, swinging):
     for leg in range(6):
         if swinging[leg] and s.aim[leg] >= 0:
-            touchdown[leg, 0] = s.footholds[_side(leg), s.aim[leg], 0]
+            touchdown[leg, 0] = s.stood[_side(leg), s.aim[leg], 0] + s.aim_offset[leg]
 
 
 @njit(cache=True)
@@ -709,7 +755,7 @@ def _move_footholds(footholds, twist, dt):
     """Footholds are on the ground: they move against the body twist."""
     vx, vy, wz = twist
     for side in range(2):
-        for slot in range(FOOTHOLDS):
+        for slot in range(footholds.shape[1]):
             velocity_x, velocity_y = _ground_velocity(footholds[side, slot, 0], footholds[side, slot, 1], vx, vy, wz)
             footholds[side, slot, 0] -= velocity_x * dt
             footholds[side, slot, 1] -= velocity_y * dt
@@ -784,6 +830,8 @@ def _rotate_frame(state, rotation):
     for side in range(2):
         for slot in range(FOOTHOLDS):
             _rotate_row(s.footholds[side], slot, rotation)
+        for slot in range(STOOD):
+            _rotate_row(s.stood[side], slot, rotation)
 
 
 @njit(cache=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import (FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
+from testbed.control.gait import (FOOTHOLD_REACH, FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
                                   footholds_slope, walk_plane)
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
@@ -282,16 +282,18 @@ def test_a_swing_foot_that_finds_a_step_top_on_its_way_down_lands_beyond_where_i
 
 
 def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
-    """A step down of 3 cm whose edge lies 4 mm beyond where the left middle foot lands on level
-    ground (on its corner, with a foot's radius). The middle foot lands where the left front foot
-    stood instead, and neither it nor the rear foot lands within 8 mm of the edge."""
+    """A step down of 3 cm whose edge lies 5 mm short of where the left middle foot lands on level
+    ground (on the edge's corner, with a foot's 1 cm radius). The middle foot lands where the left
+    front foot stood instead; the rear foot, whose touch-down lies further from that foothold than
+    the legs reach, lands the reach allowance nearer to it; neither lands within 8 mm of the edge."""
     ground, drop, speed = NEUTRAL[0, 2], 0.03, 0.1
     following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
     blind = dataclasses.replace(following, max_swing_height=0.0)
     flat = lambda x: np.full_like(x, ground)
     world_x, _, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, blind), 6.0, flat)
-    middle = world_x[landings(swinging, 1), 1]
-    edge = middle[middle > 0.3][0] + 0.004      # 4 mm beyond a landing of the middle foot
+    middle_flat = world_x[landings(swinging, 1), 1]
+    rear_flat = world_x[landings(swinging, 2), 2]
+    edge = middle_flat[middle_flat > 0.3][0] - 0.005
     floor_at = lambda x: np.where(x >= edge, ground - drop, ground)
     world_x, height, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, following), 9.0, floor_at)
     front_stood = world_x[np.flatnonzero(np.diff(swinging[:, 0].astype(int)) == 1), 0]
@@ -302,6 +304,13 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     middle = world_x[landings(swinging, 1), 1]
     aimed = middle[np.abs(middle - edge) < 0.02]
     assert len(aimed) == 1 and np.abs(front_stood - aimed[0]).min() < 1e-3
+    # the rear foot's touch-down on level ground nearest the edge, and where it landed instead
+    planned = rear_flat[np.argmin(np.abs(rear_flat - edge))]
+    foothold = front_stood[front_stood > edge][0]
+    reach = 0.5 * (STEPPING.max_step_length - speed * 0.5) + FOOTHOLD_REACH
+    assert foothold - planned > reach
+    rear = world_x[landings(swinging, 2), 2]
+    assert np.abs(rear - (planned + reach)).min() < 1e-3
 
 
 def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_on_a_line():
@@ -318,7 +327,7 @@ def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_o
 
 @pytest.mark.parametrize("ground, aims", [("ramp", False), ("step", True)])
 def test_rear_feet_aim_at_front_footholds_around_an_edge_but_not_on_an_even_ramp(ground, aims):
-    """The left rear foot lifts with its planned touch-down between two front footholds 3 cm apart
+    """The left rear foot lifts with its planned touch-down between two footholds 3 cm apart
     that differ by 1.1 cm in height: on an even 20 deg ramp (the slope of the front footholds
     explains the rise) it keeps its touch-down, which the uphill shift moves; with a 3 cm step
     between them (the same heights elsewhere level) it aims at the nearer foothold."""
@@ -331,7 +340,8 @@ def test_rear_feet_aim_at_front_footholds_around_an_edge_but_not_on_an_even_ramp
     z = np.tan(np.radians(20.0)) * x if ground == "ramp" else np.where(x > planned + speed * 0.5, 0.03, 0.0)
     for side, y in enumerate((0.16, -0.16)):
         s["footholds"][side] = np.column_stack([x, np.full(FOOTHOLDS, y), z - 0.09])
-    s["foothold_count"][:] = FOOTHOLDS
+        s["stood"][side, :FOOTHOLDS] = s["footholds"][side]
+    s["foothold_count"][:] = s["stood_count"][:] = FOOTHOLDS
     lifting = np.zeros(6, dtype=bool)
     lifting[rear] = True
     _choose_footholds(gait.parameters, s, lifting, twist, footholds_slope(s["footholds"], s["foothold_count"]))
