@@ -16,7 +16,7 @@ a process runs beside it.
 - The writer keeps off the CPU that the recording process runs on (`keep_off_cpu`, at each
   handover) where the recording process may use another: Linux wakes a process on the CPU of the
   one that woke it, so with the other CPUs busy (a second program on a 2-core machine) the writer
-  took its time from the run loop's CPU, and the loop ran a third slower.
+  would take its time from the run loop's CPU (the loop then waits for it about a fifth of its time).
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
   without closing: it then closes the file validly and leaves it under its `.partial` name.
