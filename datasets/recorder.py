@@ -39,7 +39,8 @@ from typing import TYPE_CHECKING
 
 from datasets import codec, schemas
 from datasets.signals import sigint_deferred
-from datasets.writer import PARTIAL_SUFFIX, DatasetWriter, OutputBusy, WriterFailed, WriterProcess, partial_path_of
+from datasets.writer import (PARTIAL_SUFFIX, DatasetWriter, OutputBusy, WriterFailed, WriterProcess, partial_path_of,
+                             running_cpu)
 from testbed.runtime.parts import part_sources
 from testbed.runtime.recording import Tick
 
@@ -144,6 +145,7 @@ class McapRecorder:
             self._pending = []
             self._ticks += len(pending)
             self._samples += len(columns.sample_kinds)
+            self._dataset.keep_off_cpu(running_cpu())
             self._dataset.write_ticks(columns, flush)
 
 

@@ -13,6 +13,10 @@ a process runs beside it.
   write at once, which the next handover or `close` raises as `WriterFailed`.
 - The writer is scheduled as a batch process (SCHED_BATCH): a handover wakes it without having
   it preempt the recording process, which would then wait for the handover's end.
+- The writer keeps off the CPU that the recording process runs on (`keep_off_cpu`, at each
+  handover) where the recording process may use another: Linux wakes a process on the CPU of the
+  one that woke it, so with the other CPUs busy (a second program on a 2-core machine) the writer
+  would take its time from the run loop's CPU (the loop then waits for it about a fifth of its time).
 - The writer ignores SIGINT and SIGTERM (Ctrl-C reaches the whole foreground process group) and
   stops on `close`, or when its pipe reaches end of file because the recording process ended
   without closing: it then closes the file validly and leaves it under its `.partial` name.
@@ -290,6 +294,7 @@ class WriterProcess:
         self.path = Path(path)
         self.partial_path = partial_path_of(self.path)
         self.closed = False
+        self._kept_off: int | None = None      # the CPU the writer keeps off (`keep_off_cpu`)
         description = RunDescription.of(run_info, config, urdf)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         stream = open_partial(self.path)
@@ -306,6 +311,19 @@ class WriterProcess:
             if self.partial_path.exists() and not self.partial_path.stat().st_size:
                 self.partial_path.unlink()
             raise
+
+    def keep_off_cpu(self, cpu: int | None) -> None:
+        """Have the writer run on the CPUs this process may use other than `cpu` (the one it runs
+        on: `running_cpu`), when there are such; as it was with none or `cpu` None."""
+        if cpu is None or cpu == self._kept_off:
+            return
+        others = os.sched_getaffinity(0) - {cpu}
+        try:
+            if others:
+                os.sched_setaffinity(self.pid, others)
+                self._kept_off = cpu
+        except OSError:         # the writer has ended: the next handover says why
+            pass
 
     def write(self, messages: list[Message], flush: bool) -> None:
         """Hand the messages over; raise `WriterFailed` if an earlier batch failed."""
@@ -362,6 +380,19 @@ class WriterProcess:
 
     def _failure_text(self, reason: str) -> str:
         return f"writing {self.partial_path} failed: {reason}"
+
+
+# /proc/<pid>/stat: the CPU last run on is field 39, the 37th after the command's name ("(...)")
+PROCESSOR_FIELD = 36
+
+
+def running_cpu() -> int | None:
+    """The CPU the calling thread runs on (Linux's /proc), None where that is not known."""
+    try:
+        with open("/proc/thread-self/stat", "rb") as stat:
+            return int(stat.read().rsplit(b")", 1)[1].split()[PROCESSOR_FIELD])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _fork_writer(path: Path, stream: IO[bytes], description: RunDescription, connection: Link,

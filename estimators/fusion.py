@@ -1049,8 +1049,8 @@ def ground_normal_in_body(terrain: np.ndarray | None, q: rot.Quaternion) -> tupl
         return rot.up_in_body(q)
     a, b = float(terrain[0]), float(terrain[1])
     scale = 1.0 / math.sqrt(1.0 + a * a + b * b)
-    R = rot.to_matrix(q)            # R^T (-a, -b, 1): the world normal's components on the body axes
-    return tuple(float((R[2, i] - a * R[0, i] - b * R[1, i]) * scale) for i in range(3))
+    x, y, z = rot.to_matrix(q).tolist()     # R^T (-a, -b, 1): the world normal's components on the body axes
+    return tuple((z[i] - a * x[i] - b * y[i]) * scale for i in range(3))
 
 
 # Compiled: it runs at every encoder sample.

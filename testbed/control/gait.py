@@ -261,7 +261,7 @@ class GaitGenerator:
     def rotate(self, rotation: np.ndarray) -> None:
         """Turn the gait frame's contents (targets, swing starts, search floors) by `rotation`
         (3, 3) about the frame's origin: the frame itself turns by its transpose."""
-        _rotate_frame(self.state_record, rotation)
+        rotate_frame(self.state_record, rotation)
 
     def clock(self, t: float) -> float:
         """Gait time at run time t: the time spent waiting for the ground does not count."""
@@ -817,7 +817,7 @@ def _keep_over_edges(parameters, s, in_swing, measured):
 
 
 @njit(cache=True)
-def _rotate_frame(state, rotation):
+def rotate_frame(state, rotation):
     """GaitGenerator.rotate on a GAIT_STATE record: rows p -> rotation p of the targets and swing
     starts; each search floor moves with its foot's height."""
     s = state[0]

@@ -16,7 +16,7 @@ from sensors.samples import EncoderSample, FootSample, ImuSample, Sample
 from estimators.base import Estimate
 from testbed.control.contact_check import ContactCheck
 from testbed.control.controller import Controller
-from testbed.control.gait import GAITS, GaitGenerator, TerrainAdaptation, Twist
+from testbed.control.gait import GAITS, GaitGenerator, TerrainAdaptation, Twist, rotate_frame
 from testbed.model.kinematics import (LegGeometry, elbow_sign, foot_positions, joint_targets_or_last,
                                      solve_legs_or_last)
 from testbed.control.navigation import TargetWalker
@@ -161,8 +161,9 @@ class Pilot(Controller):
         else:
             feet = gait.state.feet.copy()
             if t < startup_time:
-                feet[:, 2] += (1.0 - self.startup.rise(t)) * self.start_rise
-                self.crouch = self.startup.rise(t) * self.startup_crouch
+                rise = self.startup.rise(t)
+                feet[:, 2] += (1.0 - rise) * self.start_rise
+                self.crouch = rise * self.startup_crouch
         # The law engages once the start-up (still, then the calibration poses) is over.
         if self.posture_law is not None and t >= startup_time and self.latest_estimate is not None:
             measurement = self._posture_measurement(self.truth_attitude)
@@ -238,7 +239,7 @@ class Pilot(Controller):
         if self.gait_level_rate <= 0.0:
             return
         correction = self.correction
-        self.gait.rotate(levelling_rotation(roll, pitch, correction.roll, correction.pitch, self.gait_level_rate))
+        level_gait_frame(self.gait.state_record, roll, pitch, correction.roll, correction.pitch, self.gait_level_rate)
 
     def _posture_update(self, t: float, measurement: PostureMeasurement) -> PostureCorrection:
         """The law's correction; whatever it raises or returns malformed is a one-line PluginFailure."""
@@ -338,6 +339,13 @@ def terrain_adaptation(config) -> TerrainAdaptation:
 
 
 NO_TILT = (0.0, 0.0)
+
+
+@njit(cache=True)
+def level_gait_frame(gait_state, roll, pitch, correction_roll, correction_pitch, share):
+    """GaitGenerator.rotate by `levelling_rotation` (the same arguments) in one compiled call, on
+    the gait's GAIT_STATE record."""
+    rotate_frame(gait_state, levelling_rotation(roll, pitch, correction_roll, correction_pitch, share))
 
 
 @njit(cache=True)

@@ -17,6 +17,8 @@ feet were squeezed inwards by 2.6-5.4 N from their landing to their lift-off (do
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from testbed.control.gait import walk_plane
@@ -38,7 +40,7 @@ def ground_normal(feet: np.ndarray, planted: np.ndarray) -> np.ndarray:
     frame), z_b with fewer than three."""
     _, slope_x, slope_y = walk_plane(feet, planted, 0.0)
     normal = np.array([-slope_x, -slope_y, 1.0])
-    return normal / np.linalg.norm(normal)
+    return normal / math.sqrt(normal.dot(normal))
 
 
 class StanceRolling:
@@ -62,6 +64,7 @@ class StanceRolling:
         both = planted & self.planted_before
         if both.any():
             normal = ground_normal(joint_feet, planted)
-            feet[both] += sphere_rolling(joints, self.previous, self.geometry, self.radius, normal)[both]
+            shift = sphere_rolling(joints, self.previous, self.geometry, self.radius, normal)
+            np.add(feet, shift, out=feet, where=both[:, None])
         self.previous[:] = joints
         self.planted_before[:] = planted
