@@ -387,7 +387,8 @@ PROCESSOR_FIELD = 36
 
 
 def running_cpu() -> int | None:
-    """The CPU the calling thread runs on (Linux's /proc), None where that is not known."""
+    """The CPU the calling thread runs on (Linux's /proc), None where that is not known. (psutil's
+    `Process().cpu_num()` reads the same field; psutil is only a test dependency here.)"""
     try:
         with open("/proc/thread-self/stat", "rb") as stat:
             return int(stat.read().rsplit(b")", 1)[1].split()[PROCESSOR_FIELD])
