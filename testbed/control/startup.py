@@ -24,7 +24,7 @@ POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
 # The yaw a z gyro bias error leaves grows with the time walked, its reading's noise falls with the
 # square root of the time held (docs/estimators.md, "The level hold"); a short run keeps its walk.
 AUTO_LEVEL_HOLD_SHARE = 0.05
-AUTO_LEVEL_HOLD_RANGE = (0.2, 1.5)
+AUTO_LEVEL_HOLD_RANGE = (0.2, 10.0)
 
 
 def level_hold(setting: float | str, duration: float) -> float:
