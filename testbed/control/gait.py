@@ -74,7 +74,7 @@ STANCE_SETTLE_TIME = 0.05
 RISING_HALF = 0.5
 # m: a swing foot this far above its start that touches something on its way up has met a riser
 RISER_HEIGHT = 0.01
-# Footholds the front feet stood on, remembered per side for the middle and rear feet (a ring).
+# Footholds the front feet stood on, remembered per side (a ring): the ground's slope ahead.
 FRONT_LEGS = (0, 5)
 FOOTHOLDS = 6
 # Where each foot of a side stood at its last lift-offs (a ring, every leg's): the x-neighbours
@@ -704,7 +704,7 @@ def _choose_footholds(parameters, s, lifting, twist, slope):
 @njit(cache=True)
 def _nearest_foothold(stood, count, twist, time, x, direction):
     """The slot of the foothold nearest beyond x in `direction` (+1 ahead, -1 behind) where it
-    will be in `time`, and that x; -1 and inf when there is none."""
+    will be in `time`, and that x; -1 and an infinite x when there is none."""
     best, best_distance = -1, np.inf
     for slot in range(count):
         distance = direction * (_landing_x(stood[slot], twist, time) - x)
