@@ -84,6 +84,10 @@ STOOD = 12
 FOOTHOLD_SPACING = 0.01
 # m a follower's touch-down may move onto a proven foothold beyond the stride's reach allowance
 FOOTHOLD_REACH = 0.005
+# m a follower's touch-down lies beyond the foothold it aims at, away from the edge: the foot that
+# stood there may have stood against the riser (a front foot's swing can end within its radius of
+# a step-down edge), where a descending sphere catches the corner (robot.foot_radius, 1 cm)
+FOOTHOLD_MARGIN = 0.01
 # The ground's slope ahead: a line through each side's last SLOPE_FOOTHOLDS front footholds, trusted
 # when they fit it within SLOPE_FIT (RMS; a step among them does not), moving the stance at most
 # SLOPE_SHIFT_LIMIT uphill.
@@ -674,7 +678,8 @@ def _choose_footholds(parameters, s, lifting, twist, slope):
     """A middle or rear swing whose planned touch-down lies between two neighbouring footholds of
     its side (the nearest behind and ahead of it where the side's feet stood) with an edge
     between them (`_edge_between`) aims at the nearer of the two, where the ground is known to
-    hold: on it if the legs reach it, else the reach allowance nearer to it than planned. Not on
+    hold: FOOTHOLD_MARGIN beyond it, away from the edge, as far as the legs reach, else the
+    reach allowance nearer to it than planned. Not on
     an edge's corner, from which a foot slides off when it takes the weight (docs/control.md,
     "Footholds"). On an even ramp the swings keep their touch-downs, moved uphill
     (`_shift_uphill`)."""
@@ -696,9 +701,9 @@ def _choose_footholds(parameters, s, lifting, twist, slope):
         if behind < 0 or ahead < 0 or not _edge_between(stood, count, twist, swing_time, behind, ahead, slope):
             continue
         if ahead_x - planned < planned - behind_x:
-            s.aim[leg], s.aim_offset[leg] = ahead, -max(0.0, ahead_x - planned - reach)
+            s.aim[leg], s.aim_offset[leg] = ahead, min(ahead_x + FOOTHOLD_MARGIN, planned + reach) - ahead_x
         else:
-            s.aim[leg], s.aim_offset[leg] = behind, max(0.0, planned - behind_x - reach)
+            s.aim[leg], s.aim_offset[leg] = behind, max(behind_x - FOOTHOLD_MARGIN, planned - reach) - behind_x
 
 
 @njit(cache=True)

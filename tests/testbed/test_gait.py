@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import (FOOTHOLD_REACH, FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
+from testbed.control.gait import (FOOTHOLD_MARGIN, FOOTHOLD_REACH, FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
                                   footholds_slope, walk_plane)
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
@@ -283,9 +283,11 @@ def test_a_swing_foot_that_finds_a_step_top_on_its_way_down_lands_beyond_where_i
 
 def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     """A step down of 3 cm whose edge lies 5 mm short of where the left middle foot lands on level
-    ground (on the edge's corner, with a foot's 1 cm radius). The middle foot lands where the left
-    front foot stood instead; the rear foot, whose touch-down lies further from that foothold than
-    the legs reach, lands the reach allowance nearer to it; neither lands within 8 mm of the edge."""
+    ground (on the edge's corner, with a foot's 1 cm radius). The middle foot lands beyond where
+    the left front foot stood instead, away from the edge (by FOOTHOLD_MARGIN, as far as the legs
+    reach); the rear foot, whose
+    touch-down lies further from that foothold than the legs reach, lands the reach allowance
+    nearer to it; neither lands within 8 mm of the edge."""
     ground, drop, speed = NEUTRAL[0, 2], 0.03, 0.1
     following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
     blind = dataclasses.replace(following, max_swing_height=0.0)
@@ -302,8 +304,13 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
         assert landed.max() > edge + 0.05                   # it walked past the edge
         assert np.abs(landed - edge).min() > 0.008
     middle = world_x[landings(swinging, 1), 1]
-    aimed = middle[np.abs(middle - edge) < 0.02]
-    assert len(aimed) == 1 and np.abs(front_stood - aimed[0]).min() < 1e-3
+    aimed = middle[np.abs(middle - edge) < 0.03]
+    assert len(aimed) == 1
+    # beyond the front foothold nearest it, on the side away from the edge, by at most the margin
+    # (less where the legs reach no further)
+    foothold = front_stood[np.argmin(np.abs(front_stood - aimed[0]))]
+    beyond = (aimed[0] - foothold) * np.sign(foothold - edge)
+    assert 0.005 < beyond <= FOOTHOLD_MARGIN + 1e-9
     # the rear foot's touch-down on level ground nearest the edge, and where it landed instead
     planned = rear_flat[np.argmin(np.abs(rear_flat - edge))]
     foothold = front_stood[front_stood > edge][0]
