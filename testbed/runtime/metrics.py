@@ -9,6 +9,7 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -18,10 +19,14 @@ from scipy.spatial.transform import Rotation
 from estimators.scoring import METRIC_KEYS, StreamingScore, contact_planes
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
+from testbed.world.terrain.base import EDGE, ROUGH_PATCH, TerrainFeature
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
 SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
 POSTURE_SKIP = 1.0    # s, posture metrics (tilt, height error) exclude the first second and the start-up
+# s, a crossing's tilt counts from this long before the first foot passes a terrain feature to
+# this long after the last foot passed it (the posture benchmark's window, tests/benchmarks)
+CROSSING_LEAD, CROSSING_SETTLE = 0.5, 1.0
 
 
 class RunMetrics:
@@ -31,7 +36,7 @@ class RunMetrics:
 
     BLOCK_STEPS = StreamingScore.BLOCK_STEPS
 
-    def __init__(self, config: Config, weight: float):
+    def __init__(self, config: Config, weight: float, features: Sequence[TerrainFeature] = ()):
         self.config = config
         self.weight = weight
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
@@ -45,7 +50,7 @@ class RunMetrics:
         self.last_xy = np.zeros(2)
         self._rows: list[tuple] = []      # the block being gathered, per tick: t, quaternion, body position, feet, contact
         self._estimates: list = []        # estimates of those ticks
-        self.posture = PostureSums(config)
+        self.posture = PostureSums(config, features)
         self.scoring = StreamingScore(config.robot.foot_radius)
 
     def add(self, tick: Tick) -> None:
@@ -122,7 +127,7 @@ class PostureSums:
     the body centre: that jumps by a step's height when the centre passes over its edge, and by
     a block's on rough ground, while no body standing on its legs can (docs/control.md)."""
 
-    def __init__(self, config: Config):
+    def __init__(self, config: Config, features: Sequence[TerrainFeature] = ()):
         self.stance_height = config.robot.stance_height
         self.foot_radius = config.robot.foot_radius
         self.skip_until = max(POSTURE_SKIP, config.startup_time)
@@ -132,6 +137,7 @@ class PostureSums:
         self.height_squares = 0.0
         self.height_count = 0
         self.last_height = math.nan      # m, the last tick's, for ticks with fewer than three feet down
+        self.crossings = CrossingTilts(features)
 
     def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray, feet: np.ndarray,
             contact: np.ndarray) -> None:
@@ -146,15 +152,60 @@ class PostureSums:
         self.count += len(tilt)
         self.tilt_squares += float(np.sum(tilt ** 2))
         self.tilt_max = max(self.tilt_max, float(tilt.max()))
+        self.crossings.add(t[keep], tilt, feet[keep, :, 0])
         self.height_squares += float(np.sum(error ** 2))
         self.height_count += len(error)
 
     def metrics(self) -> dict:
+        crossings = self.crossings.metrics()
         if not self.count:
-            return {"tilt_rms_deg": None, "tilt_max_deg": None, "height_error_rms_m": None}
+            return {"tilt_rms_deg": None, "tilt_max_deg": None, **crossings, "height_error_rms_m": None}
         return {"tilt_rms_deg": float(np.sqrt(self.tilt_squares / self.count)), "tilt_max_deg": self.tilt_max,
-                "height_error_rms_m": float(np.sqrt(self.height_squares / self.height_count))
+                **crossings, "height_error_rms_m": float(np.sqrt(self.height_squares / self.height_count))
                 if self.height_count else None}
+
+
+class CrossingTilts:
+    """The true tilt's maximum while the feet cross the terrain's features (`Terrain.features`), per
+    kind: `edge_tilt_max_deg` (steps, stairs, a ramp's ends) and `rough_tilt_max_deg` (rough
+    patches); null where the run crossed none. A crossing lasts from CROSSING_LEAD before the first
+    foot passes the feature's start to CROSSING_SETTLE after the last foot passed its end, as the
+    posture benchmark counts it. Fed block by block, the last CROSSING_LEAD of ticks kept for the lead."""
+
+    def __init__(self, features: Sequence[TerrainFeature]):
+        self.features = tuple(features)
+        self.entered = [math.nan] * len(self.features)     # s, the first foot past x0
+        self.passed = [math.nan] * len(self.features)      # s, every foot past x1
+        self.maxima = {EDGE: -math.inf, ROUGH_PATCH: -math.inf}
+        self._before = (np.empty(0), np.empty(0))          # t and tilt of the last CROSSING_LEAD
+
+    def add(self, t: np.ndarray, tilt: np.ndarray, feet_x: np.ndarray) -> None:
+        """Ticks at times t (s) with the body's tilt (deg) and the feet's world x (N, 6)."""
+        if not self.features or not len(t):
+            return
+        front, back = feet_x.max(axis=1), feet_x.min(axis=1)
+        both_t, both_tilt = np.concatenate([self._before[0], t]), np.concatenate([self._before[1], tilt])
+        for index, feature in enumerate(self.features):
+            if math.isnan(self.entered[index]):
+                self.entered[index] = _first_time(t, front > feature.x0)
+            if math.isnan(self.passed[index]):
+                self.passed[index] = _first_time(t, back > feature.x1)
+            if math.isnan(self.entered[index]):
+                continue
+            end = math.inf if math.isnan(self.passed[index]) else self.passed[index] + CROSSING_SETTLE
+            crossing = (both_t >= self.entered[index] - CROSSING_LEAD) & (both_t <= end)
+            if crossing.any():
+                self.maxima[feature.kind] = max(self.maxima[feature.kind], float(both_tilt[crossing].max()))
+        recent = both_t >= t[-1] - CROSSING_LEAD
+        self._before = (both_t[recent], both_tilt[recent])
+
+    def metrics(self) -> dict:
+        return {f"{kind}_tilt_max_deg": value if math.isfinite(value) else None for kind, value in self.maxima.items()}
+
+
+def _first_time(t: np.ndarray, reached: np.ndarray) -> float:
+    """The first of the times t where `reached` holds; NaN where it never does."""
+    return float(t[np.argmax(reached)]) if reached.any() else math.nan
 
 
 def support_plane_heights(body: np.ndarray, feet: np.ndarray, contact: np.ndarray, foot_radius: float) -> np.ndarray:

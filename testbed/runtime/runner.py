@@ -258,7 +258,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     sim, sensors = parts.sim, parts.sensors
     onboard = Onboard(parts)
     pilot = parts.controller if onboard.builtin else None
-    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity)
+    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, features=sim.terrain.features())
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
     footprint = sim.terrain.footprint()

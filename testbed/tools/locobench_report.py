@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.tools import locobench
+from testbed.runtime.metrics import CROSSING_LEAD, CROSSING_SETTLE
 from testbed.runtime.outputs import write_atomically
 from testbed.tools.bench_report import (DOCS, checks_table, csv_text, load_average, new_figure, number_cell, save_png,
                                        write_results_page)
@@ -67,6 +68,8 @@ class ScenarioRow:
     outcomes: dict[str, int]                    # outcome -> runs
     tilt_rms_deg: tuple[float, float] | None    # (median, worst) over the runs
     tilt_max_deg: tuple[float, float] | None
+    edge_tilt_max_deg: tuple[float, float] | None     # while crossing edges (steps, stairs, ramp ends)
+    rough_tilt_max_deg: tuple[float, float] | None    # while crossing rough patches
     height_rms_mm: tuple[float, float] | None
     ik_limited_ticks: int                       # over the runs
     ik_limited_runs: int
@@ -95,7 +98,8 @@ def scenario_rows(results: Sequence[CaseResult]) -> list[ScenarioRow]:
         distances = [value(r, "distance_m") for r in mine if value(r, "distance_m") is not None]
         rows.append(ScenarioRow(
             group, scenario, len(mine), outcomes, spread([value(r, "tilt_rms_deg") for r in mine]),
-            spread([value(r, "tilt_max_deg") for r in mine]), spread([value(r, "height_error_rms_m") for r in mine], 1e3),
+            spread([value(r, "tilt_max_deg") for r in mine]), spread([value(r, "edge_tilt_max_deg") for r in mine]),
+            spread([value(r, "rough_tilt_max_deg") for r in mine]), spread([value(r, "height_error_rms_m") for r in mine], 1e3),
             int(sum(ticks)), sum(t > 0 for t in ticks), spread([value(r, "target_error_m") for r in mine], 100),
             float(np.median(distances)) if distances else None,
             (spread([value(r, "sim_time_s") for r in mine]) or (None,))[0], mine[0].case.config["run"]["duration"]))
@@ -142,10 +146,14 @@ def target_checks(results: Sequence[CaseResult]) -> list[Target]:
     if courses:
         where = f"course runs ({len(courses)}{', the long ramp course included' if RAMPS in long_runs else ''})"
         for key, limit, what, scale, unit in (
-                ("tilt_max_deg", COURSE_TILT_MAX, f"tilt max <= {COURSE_TILT_MAX:g} deg (over the whole run)", 1, "deg"),
+                ("edge_tilt_max_deg", COURSE_TILT_MAX, f"tilt max <= {COURSE_TILT_MAX:g} deg while crossing a step, "
+                 "stair or ramp edge", 1, "deg"),
                 ("tilt_rms_deg", COURSE_TILT_RMS, f"tilt RMS <= {COURSE_TILT_RMS:g} deg", 1, "deg"),
                 ("height_error_rms_m", COURSE_HEIGHT_RMS, f"height error RMS <= {COURSE_HEIGHT_RMS * 1e3:g} mm", 1e3, "mm")):
             met, detail = _worst(courses, key, limit, scale, unit)
+            if key == "edge_tilt_max_deg":
+                detail += (f". Over the whole run: {_worst(courses, 'tilt_max_deg', limit)[1]}; on the rough "
+                           f"patches: {_worst(courses, 'rough_tilt_max_deg', limit)[1]}")
             checks.append(Target(f"{where}: {what}", met, detail))
     if RAMPS in long_runs:
         run = long_runs[RAMPS]
@@ -180,13 +188,15 @@ def _outcomes(row: ScenarioRow) -> tuple[str, str, str]:
 
 def courses_table(rows: Sequence[ScenarioRow]) -> str:
     lines = ["| layout, gait, contact | runs | falls | left terrain | errors | tilt RMS (°) | tilt max (°) | "
-             "height error RMS (mm) | IK-limited ticks (runs) | target error (cm) | simulated / planned (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "tilt max at edges (°) | tilt max on rough patches (°) | height error RMS (mm) | IK-limited ticks (runs) | "
+             "target error (cm) | simulated / planned (s) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         if row.group == COURSES:
             fell, left, errors = _outcomes(row)
             lines.append(f"| {row.scenario} | {row.runs} | {fell} | {left} | {errors} | {_pair(row.tilt_rms_deg)} | "
-                         f"{_pair(row.tilt_max_deg)} | {_pair(row.height_rms_mm, 1)} | {row.ik_limited_ticks} "
+                         f"{_pair(row.tilt_max_deg)} | {_pair(row.edge_tilt_max_deg)} | {_pair(row.rough_tilt_max_deg)} | "
+                         f"{_pair(row.height_rms_mm, 1)} | {row.ik_limited_ticks} "
                          f"({row.ik_limited_runs}) | {_pair(row.target_error_cm, 1)} | {number_cell(row.simulated_s, 0)} / "
                          f"{row.duration_s:g} |")
     return "\n".join(lines)
@@ -287,9 +297,10 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
         f"`{command_line(result.loco_set)}`; the full set: `testbed locobench --docs` or `make bench`"
         + (f", about {full_s / 60:.0f} min on 2 worker processes at the speed of these runs." if full_s else "."),
         "### Targets (issue 21)",
-        "Met: every run of the set meets it (a reduced set says nothing of the full one). The metrics hold the "
-        "tilt max of a whole run, not of each edge crossing: the course tilt target is checked on the whole run, "
-        "which is stricter.",
+        "Met: every run of the set meets it (a reduced set says nothing of the full one). The tilt max while "
+        f"crossing an edge counts from {CROSSING_LEAD:g} s before the first foot passes it to {CROSSING_SETTLE:g} s "
+        "after the last foot did, as the posture benchmark counts it (`edge_tilt_max_deg`, the run's metrics; "
+        "the rough patches alike, `rough_tilt_max_deg`, which the issue sets no limit for).",
         checks_table(target_checks(result.results))]
     if any(r.group == COURSES for r in rows):
         parts += [
@@ -322,7 +333,8 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
     return "\n\n".join(parts) + "\n"
 
 
-RUN_COLUMNS = ("fell", "left_terrain", "error", "tilt_rms_deg", "tilt_max_deg", "height_error_rms_m",
+RUN_COLUMNS = ("fell", "left_terrain", "error", "tilt_rms_deg", "tilt_max_deg", "edge_tilt_max_deg", "rough_tilt_max_deg",
+               "height_error_rms_m",
                "ik_limited_ticks", "target_error_m", "distance_m", "lateral_drift_m", "sim_time_s", "min_stability_margin_m",
                "roll_rmse_deg", "pitch_rmse_deg", "realtime_factor")
 
@@ -342,7 +354,7 @@ def run_rows(results: Sequence[CaseResult]) -> list[dict]:
 # --- plots -----------------------------------------------------------------------------------
 
 COURSE_PANELS = (   # metric key, axis label (log scale), scale, target
-    ("tilt_max_deg", "tilt max (°)", 1.0, COURSE_TILT_MAX),
+    ("edge_tilt_max_deg", "tilt max at edges (°)", 1.0, COURSE_TILT_MAX),
     ("tilt_rms_deg", "tilt RMS (°)", 1.0, COURSE_TILT_RMS),
     ("height_error_rms_m", "height error RMS (mm)", 1e3, COURSE_HEIGHT_RMS * 1e3),
     ("target_error_m", "target error (cm)", 100.0, TARGET_ERROR * 100),

@@ -135,7 +135,7 @@ def test_locobench_command_rejects_a_missing_config_file_in_one_line(tmp_path, c
 
 def result(scenario: str, group: str = COURSES, **metrics) -> CaseResult:
     base = {"fell": False, "left_terrain": False, "error": None, "tilt_rms_deg": 0.2, "tilt_max_deg": 0.8,
-            "height_error_rms_m": 0.002, "ik_limited_ticks": 0, "target_error_m": 0.01, "distance_m": 4.0,
+            "edge_tilt_max_deg": 0.7, "rough_tilt_max_deg": 0.8, "height_error_rms_m": 0.002, "ik_limited_ticks": 0, "target_error_m": 0.01, "distance_m": 4.0,
             "sim_time_s": 50.0}
     config = {"run": {"duration": 50.0, "contact": "compliant", "gait": "tripod", "seed": 1}, "gait": {"speed": 0.1}}
     return CaseResult(Case(group, scenario, 0, config, "drawn"), {**base, **metrics})
@@ -146,10 +146,15 @@ def test_targets_are_met_only_when_every_run_meets_them():
                                                  target_error_m=None)]
     checks = locobench_report.target_checks(good)
     assert len(checks) == 1 + 2 + 3 + 1 and all(c.passed for c in checks), checks
-    bad = good + [result("B wave dart", tilt_max_deg=2.4, target_error_m=0.045, fell=True)]
+    # a rough patch's tilt sets no target; an edge's does
+    rough = good + [result("C ripple dart", tilt_max_deg=3.1, rough_tilt_max_deg=3.1)]
+    assert all(c.passed for c in locobench_report.target_checks(rough))
+    bad = good + [result("B wave dart", tilt_max_deg=2.4, edge_tilt_max_deg=2.4, target_error_m=0.045, fell=True)]
     failed = [c for c in locobench_report.target_checks(bad) if not c.passed]
     assert [c.what.split(" ")[0] for c in failed] == ["0", "course", "walk"]
-    assert "worst 2.40 deg (B wave dart #0); 1 of 2 runs within" in failed[1].detail
+    assert "while crossing a step, stair or ramp edge" in failed[1].what
+    assert failed[1].detail.startswith("worst 2.40 deg (B wave dart #0); 1 of 2 runs within. Over the whole run: "
+                                       "worst 2.40 deg")
     assert "worst 4.5 cm" in failed[2].detail
     # A run without metrics is never counted as met.
     missing = good + [CaseResult(good[0].case, None, "RuntimeError: boom")]
@@ -209,6 +214,8 @@ def test_report_of_real_runs_from_their_metrics_json(tmp_path):
     row = next(line for line in text.splitlines() if line.startswith("| B tripod compliant |"))
     tilt_max = course.metrics["tilt_max_deg"]
     assert f"| {tilt_max:.2f} / {tilt_max:.2f} |" in row
+    # 8 s of course B reach no feature (its rough patch starts 0.3 m ahead, after the start-up)
+    assert course.metrics["edge_tilt_max_deg"] is None and f"| {tilt_max:.2f} / {tilt_max:.2f} | – | " in row
     assert f"| {walk.metrics['tilt_rms_deg']:.3f} |" in next(l for l in text.splitlines() if l.startswith("| flat 0.1"))
     target = next(line for line in text.splitlines() if line.startswith("| 10 s flat 0.1 m/s: tilt RMS"))
     assert target.endswith("| yes |") == (walk.metrics["tilt_rms_deg"] <= 0.3)

@@ -169,3 +169,27 @@ def test_the_height_metric_is_the_vertical_height_above_the_feet_s_ground_plane(
     for step in np.flatnonzero(~three):
         before = previous[previous < step]
         assert filled[step] == (measured[before[-1]] if len(before) else 0.5)
+
+
+def test_crossing_tilts_count_the_posture_benchmark_s_window_whatever_the_blocks():
+    """A step edge at x = 1 and a rough patch [2, 3]: feet 0.3 m apart walk at 0.1 m/s; the tilt
+    peaks inside each crossing window (edge: 0.5 s before the front foot passes to 1 s after the
+    rear one has) and beyond them. Fed as one block, in blocks of 700 ticks or of 97 (shorter than
+    the lead), the maxima are those of the windows alone."""
+    from testbed.runtime.metrics import CrossingTilts
+    from testbed.world.terrain.base import EDGE, ROUGH_PATCH, TerrainFeature
+    features = [TerrainFeature(EDGE, 1.0, 1.0), TerrainFeature(ROUGH_PATCH, 2.0, 3.0)]
+    t = np.arange(0.0, 40.0, 0.001)
+    body = 0.1 * t
+    feet_x = body[:, None] + np.linspace(-0.15, 0.15, 6)
+    tilt = np.full_like(t, 0.2)
+    # the front foot passes 1.0 at 8.5 s, the rear one at 11.5 s; the rough patch 18.5 ... 31.5 s
+    for when, value in ((8.05, 1.5), (12.45, 1.7), (12.6, 9.0), (25.0, 2.5), (32.6, 9.0), (7.9, 9.0)):
+        tilt[np.argmin(np.abs(t - when))] = value
+    for block in (len(t), 700, 97):
+        crossings = CrossingTilts(features)
+        for start in range(0, len(t), block):
+            rows = slice(start, start + block)
+            crossings.add(t[rows], tilt[rows], feet_x[rows])
+        assert crossings.metrics() == {"edge_tilt_max_deg": 1.7, "rough_tilt_max_deg": 2.5}
+    assert CrossingTilts([]).metrics() == {"edge_tilt_max_deg": None, "rough_tilt_max_deg": None}

@@ -47,6 +47,16 @@ def test_heights_at_known_points():
                                atol=1e-12)
 
 
+def test_the_features_crossed_are_the_ramps_ends_the_step_each_riser_and_the_rough_patch():
+    """The ramp up's ends (0.5, 1.3), the step (1.9), the stairs' three risers (2.4, 2.6, 2.8), the
+    rough patch [3.0, 3.6] and the end of the ramp down (4.1); its start lies on the rough
+    patch's end, which the patch's crossing covers."""
+    features = course().features()
+    assert [f.kind for f in features] == ["edge"] * 6 + ["rough", "edge"]
+    np.testing.assert_allclose([f.x0 for f in features], [0.5, 1.3, 1.9, 2.4, 2.6, 2.8, 3.0, 4.1], atol=1e-12)
+    assert features[6].x1 == pytest.approx(3.6) and all(f.x0 == f.x1 for f in features if f.kind == "edge")
+
+
 DOWN = [{"kind": "flat", "length": 1.0}, {"kind": "ramp", "length": 0.5, "angle_deg": -15.0},
         {"kind": "flat", "length": 1.0}]
 

@@ -31,13 +31,16 @@ def recorded_boxes_match(path, terrain) -> None:
 def test_a_walk_on_a_course_stays_up(tmp_path, contact):
     from datasets.recorder import McapRecorder
     from testbed.runtime.runner import build_parts
-    # The course starts under the robot's rear feet: the front feet reach the ramp at 0.1 m.
+    # The course starts behind the robot's rear feet: the front feet (0.16 m ahead of the body)
+    # reach the ramp's foot (0.25 m) after 0.09 m.
     cfg = config.load(overrides={"run": {**WALK, "terrain": "course", "contact": contact}, "gait": FAST_START,
-                                 "terrain": {"course": COURSE, "course_start": -0.2}})
+                                 "terrain": {"course": COURSE, "course_start": -0.35}})
     parts = build_parts(cfg)
     metrics = run(cfg, McapRecorder(tmp_path / "run.mcap"), parts=parts).metrics
     assert metrics["fell"] is False and metrics["left_terrain"] is False
     assert metrics["tilt_max_deg"] < 5.0 and metrics["distance_m"] > 0.1
+    # the front feet crossed the ramp's foot: its crossing's tilt is part of the run's
+    assert 0.0 < metrics["edge_tilt_max_deg"] <= metrics["tilt_max_deg"]
     recorded_boxes_match(tmp_path / "run.mcap", parts.sim.terrain)
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from testbed.model.errors import PluginError
@@ -11,6 +13,16 @@ from testbed.world.terrain.geometry import (EVERY_BOX, Boxes, box_footprints, ca
                                             signed_distance_to_boxes, sphere_contacts)
 
 TERRAIN_STREAM = 1  # child index of the run's SeedSequence used for terrain randomness
+
+EDGE, ROUGH_PATCH = "edge", "rough"     # TerrainFeature kinds
+
+
+class TerrainFeature(NamedTuple):
+    """Ground the robot crosses along x, for the metrics: an EDGE at x0 = x1 (a step's or a stair's
+    riser, a ramp's gradient change) or a ROUGH_PATCH from x0 to x1 (m, world frame)."""
+    kind: str
+    x0: float
+    x1: float
 
 
 class Terrain:
@@ -46,6 +58,10 @@ class Terrain:
     def normal(self, xy: np.ndarray) -> np.ndarray:
         xy = np.atleast_2d(xy)
         return np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+
+    def features(self) -> tuple[TerrainFeature, ...]:
+        """The edges and rough patches the robot crosses walking along +x; none by default."""
+        return ()
 
     def footprint(self) -> tuple[float, float, float, float]:
         """x_min, x_max, y_min, y_max of the built terrain: the boxes' corners seen from above."""

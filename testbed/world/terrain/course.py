@@ -16,7 +16,7 @@ import numpy as np
 from testbed.model.errors import ConfigError
 from testbed.model.validation import require
 from testbed.world.config import CourseSegment, TerrainConfig
-from testbed.world.terrain.base import Terrain
+from testbed.world.terrain.base import EDGE, ROUGH_PATCH, Terrain, TerrainFeature
 from testbed.world.terrain.bins import BoxBins
 from testbed.world.terrain.geometry import BASE_DEPTH, EVERY_BOX, MAX_BLOCKS, Boxes, axis_aligned_boxes, candidate_rule
 
@@ -171,6 +171,17 @@ class CourseTerrain(Terrain):
                      for segment in terrain.course if segment.kind == "rough")
         if blocks > MAX_BLOCKS:
             raise ConfigError(f"terrain.course's rough segments make {blocks} blocks, more than {MAX_BLOCKS}")
+
+    def features(self) -> tuple[TerrainFeature, ...]:
+        """Each rough patch, and each edge between two other pieces: a change of level (a step, a
+        stair's riser) or of gradient (a ramp's ends)."""
+        features = [TerrainFeature(ROUGH_PATCH, piece.x0, piece.x1) for piece in self.pieces if piece.kind == ROUGH]
+        for before, after in zip(self.pieces, self.pieces[1:]):
+            if ROUGH not in (before.kind, after.kind) and (
+                    not math.isclose(before.z1, after.z0, abs_tol=1e-9)
+                    or not math.isclose(before.angle, after.angle, abs_tol=1e-9)):
+                features.append(TerrainFeature(EDGE, after.x0, after.x0))
+        return tuple(sorted(features, key=lambda feature: feature.x0))
 
     def _piece_of(self, x: np.ndarray) -> np.ndarray:
         return np.clip(np.searchsorted(self.starts, x, side="right") - 1, 0, len(self.pieces) - 1)

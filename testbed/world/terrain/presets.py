@@ -7,7 +7,7 @@ import numpy as np
 from testbed.model.errors import ConfigError
 from testbed.model.validation import require
 from testbed.world.config import TerrainConfig
-from testbed.world.terrain.base import Terrain
+from testbed.world.terrain.base import EDGE, Terrain, TerrainFeature
 from testbed.world.terrain.geometry import BASE_DEPTH, MAX_BLOCKS, Boxes, axis_aligned_boxes
 from testbed.world.terrain.grid import GridTerrain
 
@@ -64,6 +64,9 @@ class StepTerrain(Terrain):
     def height(self, xy: np.ndarray) -> np.ndarray:
         xy = np.atleast_2d(xy)
         return np.where(xy[:, 0] < self.config.step_edge_x, 0.0, self.config.step_height)
+
+    def features(self) -> tuple[TerrainFeature, ...]:
+        return (TerrainFeature(EDGE, self.config.step_edge_x, self.config.step_edge_x),)
 
 
 class RoughTerrain(GridTerrain):
