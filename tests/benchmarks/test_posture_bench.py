@@ -84,16 +84,15 @@ def simulate(scenario: str, mode: str, seed: int = SEED, duration: float = DURAT
 
 
 def crossing_figures(outcome: Outcome) -> tuple[float | None, float | None]:
-    """(max tilt while crossing, time after the last leg crossed until the tilt stays within
-    LEVEL_DEG); None without a crossing."""
+    """(max tilt while crossing, the run's `edge_tilt_max_deg`; time after the last leg crossed
+    until the tilt stays within LEVEL_DEG); None without a crossing."""
     if outcome.crossing is None:
         return None, None
-    first, last = outcome.crossing
-    window = (outcome.t >= first - 0.5) & (outcome.t <= last + SETTLE_AFTER_CROSSING)
+    _, last = outcome.crossing
     after = outcome.t > last
     off_level = after & (outcome.tilt > LEVEL_DEG)
     settle = float(outcome.t[off_level][-1] - last) if off_level.any() else 0.0
-    return float(outcome.tilt[window].max()), settle
+    return outcome.metrics["edge_tilt_max_deg"], settle
 
 
 def run_all() -> tuple[list[Outcome], list[Outcome]]:
