@@ -135,8 +135,8 @@ def test_locobench_command_rejects_a_missing_config_file_in_one_line(tmp_path, c
 
 def result(scenario: str, group: str = COURSES, **metrics) -> CaseResult:
     base = {"fell": False, "left_terrain": False, "error": None, "tilt_rms_deg": 0.2, "tilt_max_deg": 0.8,
-            "edge_tilt_max_deg": 0.7, "rough_tilt_max_deg": 0.8, "height_error_rms_m": 0.002, "ik_limited_ticks": 0, "target_error_m": 0.01, "distance_m": 4.0,
-            "sim_time_s": 50.0}
+            "edge_tilt_max_deg": 0.7, "rough_tilt_max_deg": 0.8, "height_error_rms_m": 0.002, "ik_limited_ticks": 0,
+            "target_error_m": 0.01, "distance_m": 4.0, "sim_time_s": 50.0}
     config = {"run": {"duration": 50.0, "contact": "compliant", "gait": "tripod", "seed": 1}, "gait": {"speed": 0.1}}
     return CaseResult(Case(group, scenario, 0, config, "drawn"), {**base, **metrics})
 

@@ -285,9 +285,8 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     """A step down of 3 cm whose edge lies 5 mm short of where the left middle foot lands on level
     ground (on the edge's corner, with a foot's 1 cm radius). The middle foot lands beyond where
     the left front foot stood instead, away from the edge (by FOOTHOLD_MARGIN, as far as the legs
-    reach); the rear foot, whose
-    touch-down lies further from that foothold than the legs reach, lands the reach allowance
-    nearer to it; neither lands within 8 mm of the edge."""
+    reach); the rear foot, whose touch-down lies further from that foothold than the legs reach,
+    lands the reach allowance nearer to it; neither lands within 8 mm of the edge."""
     ground, drop, speed = NEUTRAL[0, 2], 0.03, 0.1
     following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
     blind = dataclasses.replace(following, max_swing_height=0.0)
