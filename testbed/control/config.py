@@ -67,8 +67,9 @@ class GaitConfig:
 
     def duration_to_walk(self, walking: float) -> float:
         """s of a run whose start-up leaves `walking` s: the fixed point of duration = start-up +
-        walking (an "auto" level hold grows with the run by at most a twentieth of it, so each
-        substitution shrinks the error twentyfold; they stop within a picosecond)."""
+        walking (an "auto" level hold grows by at most 0.32 s per second of run, where it reaches its
+        cap, so each substitution shrinks the error at least that much; they stop within a
+        picosecond)."""
         duration, previous = walking + self.startup_time(walking), math.inf
         while abs(duration - previous) > 1e-12:
             duration, previous = walking + self.startup_time(duration), duration

@@ -20,20 +20,24 @@ import numpy as np
 # (roll, pitch) in units of the tilt, visited in this order after the still start.
 POSES = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.0, 0.0))
 
-# `gait.level_hold_time = "auto"`: the level hold is this share of the run, within these bounds (s).
-# The yaw a z gyro bias error leaves grows with the time walked, its reading's noise falls with the
-# square root of the time held (docs/estimators.md, "The level hold"); a short run keeps its walk.
+# `gait.level_hold_time = "auto"` (s): a share of the run up to REFERENCE_RUN, so that a short run
+# keeps its walk; beyond it the hold grows with the square of the run. The heading error a z gyro
+# bias error leaves grows with the time walked, and the bias's reading error falls with the square
+# root of the time held (docs/estimators.md, "The level hold"): a hold growing with the run's
+# square keeps the heading error at the end of a long walk that of a REFERENCE_RUN walk.
 AUTO_LEVEL_HOLD_SHARE = 0.05
-AUTO_LEVEL_HOLD_RANGE = (0.2, 10.0)
+REFERENCE_RUN = 40.0
+AUTO_LEVEL_HOLD_RANGE = (0.2, 20.0)
 
 
 def level_hold(setting: float | str, duration: float) -> float:
     """s the robot stands level after the poses: `gait.level_hold_time`, or with "auto" a share of
-    the run's duration (s)."""
+    the run's duration (s), which grows with the square of the duration beyond REFERENCE_RUN."""
     if setting != "auto":
         return float(setting)
     shortest, longest = AUTO_LEVEL_HOLD_RANGE
-    return min(max(AUTO_LEVEL_HOLD_SHARE * duration, shortest), longest)
+    hold = AUTO_LEVEL_HOLD_SHARE * duration * max(1.0, duration / REFERENCE_RUN)
+    return min(max(hold, shortest), longest)
 
 
 def minimum_jerk(fraction: float) -> float:

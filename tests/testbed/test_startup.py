@@ -114,9 +114,9 @@ def test_a_level_hold_that_is_neither_seconds_nor_auto_is_refused(value, message
         config_module.load().replace(gait={"level_hold_time": value})
 
 
-def test_an_auto_level_hold_is_a_twentieth_of_the_run_within_its_bounds():
-    assert [level_hold("auto", duration) for duration in (2.0, 4.0, 10.0, 30.0, 60.0, 170.0, 200.0, 600.0)] == \
-        pytest.approx([0.2, 0.2, 0.5, 1.5, 3.0, 8.5, 10.0, 10.0])
+def test_an_auto_level_hold_is_a_twentieth_of_a_run_to_40_s_then_grows_with_its_square_within_its_bounds():
+    assert [level_hold("auto", duration) for duration in (2.0, 4.0, 10.0, 30.0, 40.0, 60.0, 80.0, 120.0, 170.0, 600.0)] == \
+        pytest.approx([0.2, 0.2, 0.5, 1.5, 2.0, 4.5, 8.0, 18.0, 20.0, 20.0])
     assert level_hold(0.7, 600.0) == 0.7 and level_hold(3.0, 4.0) == 3.0      # seconds are taken as given
 
 
@@ -125,7 +125,7 @@ def test_the_default_start_up_leaves_a_short_run_its_walk_and_holds_a_long_one_l
     assert config.gait.level_hold_time == "auto"
     short, long, longest = (config.replace(run={"duration": duration}) for duration in (4.0, 30.0, 600.0))
     assert short.startup_time == pytest.approx(2.19, abs=1e-3) and long.startup_time == pytest.approx(3.49, abs=1e-3)
-    assert longest.startup_time == pytest.approx(11.99, abs=1e-3)
+    assert longest.startup_time == pytest.approx(21.99, abs=1e-3)
     assert config.replace(gait={"level_hold_time": 0.2}, run={"duration": 30.0}).startup_time == pytest.approx(2.19, abs=1e-3)
 
 
