@@ -680,8 +680,8 @@ def _choose_footholds(parameters, s, lifting, twist, slope):
     between them (`_edge_between`) aims at the nearer of the two, where the ground is known to
     hold: FOOTHOLD_MARGIN beyond it, away from the edge, as far as the legs reach, else the
     reach allowance nearer to it than planned. Not on an edge's corner, from which a foot slides
-    off when it takes the weight (docs/control.md, "Footholds"). On an even ramp the swings keep their touch-downs, moved uphill
-    (`_shift_uphill`)."""
+    off when it takes the weight (docs/control.md, "Footholds"). On an even ramp the swings keep
+    their touch-downs, moved uphill (`_shift_uphill`)."""
     p = parameters[0]
     touchdown = _touchdown(parameters, twist)
     swing_time = (1.0 - p.duty) * p.period
