@@ -295,7 +295,7 @@ class BiasStepDetector:
     gave 63 to 2,600 with drifts of 2 to 120 mrad/s; a tilt thrown by 100 deg, drifts of 20 mrad/s
     and more."""
 
-    def __init__(self, window: float, probability: float, min_drift: float = 0.0):
+    def __init__(self, window: float, probability: float, min_drift: float):
         self.window = window
         self.threshold = chi2_quantile(probability, 2)
         self.disturbed_threshold = chi2_quantile(1.0 - (1.0 - probability)**2, 2)

@@ -62,7 +62,7 @@ def test_compiled_feet_update_equals_the_readable_one(consider):
         # Mostly small innovations, some beyond the gate, and tilts large enough to be reset.
         measured = state.feet[legs] + rng.normal(0.0, 0.01, (len(legs), 3)) * rng.choice([1.0, 30.0], (len(legs), 1))
         settings = np.array([(1e-4, 11.3, *consider)], dtype=FEET_UPDATE)
-        detector = BiasStepDetector(1.0, 0.99)
+        detector = BiasStepDetector(1.0, 0.99, 0.005)
         P_compiled = P.copy()
         accepted, dx, tilt_cov = feet_correction(P, measured, state.feet, legs, 1e-4, 11.3, *consider)
         if accepted.any():
