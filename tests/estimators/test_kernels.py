@@ -62,7 +62,7 @@ def test_compiled_feet_update_equals_the_readable_one(consider):
         # Mostly small innovations, some beyond the gate, and tilts large enough to be reset.
         measured = state.feet[legs] + rng.normal(0.0, 0.01, (len(legs), 3)) * rng.choice([1.0, 30.0], (len(legs), 1))
         settings = np.array([(1e-4, 11.3, *consider)], dtype=FEET_UPDATE)
-        detector = BiasStepDetector(1.0, 0.99, 0.005)
+        detector = BiasStepDetector(1.0, 0.99, 0.005, 0.014)
         P_compiled = P.copy()
         accepted, dx, tilt_cov = feet_correction(P, measured, state.feet, legs, 1e-4, 11.3, *consider)
         if accepted.any():
@@ -274,6 +274,11 @@ def test_drift_statistic_equals_the_numpy_products():
         covariance = basis @ sums[0]["covariance"] @ basis.T
         statistic, norm = drift_statistic(sums, q)
         np.testing.assert_allclose(statistic, drift @ np.linalg.solve(covariance, drift), rtol=1e-9)
+        np.testing.assert_allclose(norm, np.linalg.norm(drift), rtol=1e-12)
+        extra = rng.uniform(0.0, 1e-6)      # rad^2 per axis
+        widened = covariance + extra * np.eye(2)
+        statistic, norm = drift_statistic(sums, q, extra)
+        np.testing.assert_allclose(statistic, drift @ np.linalg.solve(widened, drift), rtol=1e-9)
         np.testing.assert_allclose(norm, np.linalg.norm(drift), rtol=1e-12)
 
 
