@@ -278,9 +278,8 @@ def drift_statistic(sums: np.ndarray, q: rot.Quaternion, extra_variance: float =
 
 
 def turn_angle(a: rot.Quaternion, b: rot.Quaternion) -> float:
-    """The angle (rad) of the rotation from attitude a to attitude b."""
-    cosine = abs(sum(x * y for x, y in zip(a, b)))
-    return 2.0 * math.acos(min(1.0, cosine))
+    """The angle (rad, in [0, pi]) of the rotation from attitude a to attitude b."""
+    return math.hypot(*rot.log(rot.multiply(rot.conjugate(a), b)))
 
 
 class BiasStepDetector:
