@@ -19,6 +19,7 @@ class GaitConfig:
     turn_rate: float
     target: tuple[float, ...]
     target_tolerance: float
+    end_at_arrival: bool
     cruise_turn_rate: float
     heading_gain: float
     swing_height: float
@@ -45,6 +46,7 @@ class GaitConfig:
         require(all(abs(value) <= MAX_TARGET_M for value in self.target),
                 f"gait.target must lie within {MAX_TARGET_M:g} m of the start, got {list(self.target)}")
         positive("gait.target_tolerance", self.target_tolerance)
+        require(self.target or not self.end_at_arrival, "gait.end_at_arrival needs a gait.target to arrive at")
         positive("gait touch-down search", self.touchdown_search_speed, self.touchdown_search_depth)
         positive("gait timing", self.cruise_turn_rate, self.heading_gain, self.swing_height,
                          self.max_step_length, self.tripod_period, self.ripple_period, self.wave_period)

@@ -31,6 +31,11 @@ class Controller(abc.ABC):
     def tick(self, t: float, samples: list[Sample], estimate: Estimate | None) -> np.ndarray | None:
         """Joint position targets (18,) in rad for the next physics steps, or None to keep the last."""
 
+    def arrived(self) -> bool:
+        """Whether the controller has reached where it was sent (the pilot: `gait.target`): with
+        `gait.end_at_arrival` the run ends soon after. False by default."""
+        return False
+
     def command_details(self) -> Any:
         """What the controller commanded besides the joints (the pilot: gait phase, swing, foot
         targets, twist) as a `testbed.control.command.Command`, or None."""

@@ -141,6 +141,9 @@ class Pilot(Controller):
     def command_details(self) -> Command | None:
         return self.last_command
 
+    def arrived(self) -> bool:
+        return self.walker is not None and self.walker.arrived
+
     def tick(self, t: float, samples: list[Sample], estimate: Estimate | None) -> np.ndarray:
         """One control tick: gait, posture law (on the estimate's attitude, or on `truth_attitude`
         where a test sets it), inverse kinematics."""

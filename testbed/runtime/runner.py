@@ -31,13 +31,15 @@ from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
 from testbed.world.records import raw
-from testbed.world.stability import stance_support, stance_support_on_terrain, support_record, support_view
+from testbed.world.stability import (resting_feet, stance_support, stance_support_on_terrain, support_record,
+                                     support_view)
 from testbed.world.terrain import TERRAIN_STREAM, Terrain, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
 GC_ALLOCATIONS = 20_000  # container objects made between two collections of the youngest generation in a run
 CONTACT_DEBOUNCE = 0.005  # s: a foot that touched the ground this recently still supports
 GROUND_TOLERANCE = 0.001  # m: a stance foot this close to the ground still supports
+ARRIVAL_SETTLE = 2.0      # s a run with gait.end_at_arrival goes on after the controller arrived: the body comes to rest
 
 
 @dataclass
@@ -65,7 +67,6 @@ class SupportTracker:
 
     def __init__(self, terrain, foot_radius: float):
         self.terrain = terrain
-        self.foot_radius = foot_radius
         self._support = support_record(CONTACT_DEBOUNCE, foot_radius, GROUND_TOLERANCE)
         self.last_touch = support_view(self._support)["last_touch"]     # a view: the kernels update it
         self._not_resting = np.zeros(6, dtype=bool)
@@ -74,19 +75,35 @@ class SupportTracker:
 
     def polygon_and_margin(self, truth, swinging: np.ndarray) -> tuple[np.ndarray, float]:
         """The support polygon and the centre of mass's stability margin in it: one compiled call
-        which, when a stance foot is late, asks the terrain whether it rests on the ground (in
-        Python for a terrain with candidate boxes of its own)."""
+        which, when a stance foot is late, asks the terrain whether it rests on the ground (a
+        terrain with candidate boxes of its own names them in Python, between two compiled calls)."""
         if self._rule is not None:
             return stance_support_on_terrain(self._support, truth.t, truth.foot_contact, swinging,
                                              truth.foot_positions, truth.com_position, self._boxes, self._rule)
         args = (self._support, truth.t, truth.foot_contact, swinging, truth.foot_positions, truth.com_position)
         polygon, margin, late_bits = stance_support(*args, self._not_resting)
         if late_bits:
-            late = (late_bits >> np.arange(6)) & 1 == 1
-            resting = np.zeros(6, dtype=bool)
-            resting[late] = self.terrain.closest(truth.foot_positions[late])[0] - self.foot_radius <= GROUND_TOLERANCE
+            candidates = np.ascontiguousarray(self.terrain.candidates(truth.foot_positions), dtype=np.int64)
+            resting = resting_feet(self._support, truth.foot_positions, late_bits, self._boxes, candidates)
             polygon, margin, _ = stance_support(*args, resting)
         return polygon, margin
+
+
+class Arrival:
+    """When the controller said it arrived (`Controller.arrived`) on a walk to `gait.target`, and
+    whether a run that `gait.end_at_arrival` ends has gone on ARRIVAL_SETTLE since."""
+
+    def __init__(self, config, controller: Controller, spec: str):
+        self.arrived = _guarded(controller.arrived, spec, "arrived") if config.gait.target else None
+        self.ends = config.gait.end_at_arrival
+        self.time: float | None = None      # s
+
+    def settled(self, t: float) -> bool:
+        if self.arrived is None:
+            return False
+        if self.time is None and self.arrived():
+            self.time = t
+        return self.ends and self.time is not None and t >= self.time + ARRIVAL_SETTLE
 
 
 def beyond_footprint(truth, footprint: tuple[float, float, float, float]) -> bool:
@@ -262,6 +279,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
     footprint = sim.terrain.footprint()
+    arrival = Arrival(config, parts.controller, parts.controller_spec)
     outcome = RunOutcome(metrics={})
     compiling = TimingListener()
     start = time.perf_counter()
@@ -292,6 +310,10 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
                 if sim.body_tilt() > FALL_TILT or (step % FALL_CHECK_PERIOD == 0 and sim.body_touches_ground()):
                     metrics.fell = True
                     break
+                if step % FALL_CHECK_PERIOD == 0 and arrival.settled(sim.time):
+                    outcome.note = (f"arrived at the target at t = {arrival.time:.3f} s: the run ends "
+                                    f"{ARRIVAL_SETTLE:g} s later (gait.end_at_arrival)")
+                    break
     except (SimulationDiverged, PluginFailure) as error:
         outcome.error = str(error)
     except (KeyboardInterrupt, SystemError) as error:
@@ -304,6 +326,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     with held_interrupts():     # the run has stopped: a further Ctrl-C must not cut the closing of its file
         outcome.metrics = metrics.summary(sim.time, wall, getattr(parts.controller, "ik_limited_ticks", 0))
         outcome.metrics["compile_s"] = compile_s
+        outcome.metrics["arrival_time_s"] = arrival.time
         outcome.metrics["contact_cone_corrections"] = sim.cone_corrections if config.run.contact == "dart" else None
         recorder.finish(outcome.metrics, outcome.error)
     return outcome

@@ -68,8 +68,9 @@ LEAD = 0.8                      # m of level ground first: the first feature sta
 TARGET_BEYOND = 0.5             # m: the target lies this far beyond the last feature, every foot past it
 WIDTH = 1.5                     # m: the courses span y = -WIDTH ... WIDTH
 LONG_WIDTH = 0.25               # of the length: the long walks' ground is this wide to each side (no heading control)
-DURATION_MARGIN = 1.6           # course runs last the walk at the commanded speed times this, plus 3 s: time to
-                                # arrive for the slower gaits, whose clock waits for the ground at every step down
+DURATION_MARGIN = 1.6           # course runs end 2 s after arrival, at the latest after the walk at the commanded
+                                # speed times this, plus 3 s: time to arrive for the slower gaits, whose clock
+                                # waits for the ground at every step down
 LONG_DURATION = 600.0           # s
 LONG_SCENARIOS = {              # name: (terrain, speed m/s, tripod period s)
     "flat 0.1 m/s": ("flat", 0.1, 1.0),
@@ -233,7 +234,8 @@ def _config(overrides: dict[str, Any], base: dict[str, Any] | None = None) -> di
 
 def course_case(layout: str, index: int, gait: str, contact: str, max_duration: float | None = None,
                 base: dict[str, Any] | None = None) -> Case:
-    """Walk to the target beyond `layout`'s course of seed `index`."""
+    """Walk to the target beyond `layout`'s course of seed `index`; the run ends once the robot
+    stopped there (`gait.end_at_arrival`), at the latest after `duration`."""
     segments, target_x = layout_course(layout, index)
     seed = int(generator(COURSES, layout, index, "run").integers(2**31))
     speed = SPEEDS[gait]
@@ -241,7 +243,7 @@ def course_case(layout: str, index: int, gait: str, contact: str, max_duration: 
     duration = probe.gait.duration_to_walk(probe.gait.start_ramp + DURATION_MARGIN * target_x / speed + 3.0)
     duration = round(min(duration, max_duration) if max_duration else duration, 1)
     overrides = {"run": {"terrain": "course", "gait": gait, "contact": contact, "seed": seed, "duration": duration},
-                 "gait": {"speed": speed, "target": [target_x, 0.0]},
+                 "gait": {"speed": speed, "target": [target_x, 0.0], "end_at_arrival": True},
                  "terrain": {"course": segments, "course_start": COURSE_START,
                              "extent": [-2.0, round(target_x + 1.0, 3), -WIDTH, WIDTH]}}
     features = [describe(s) for s in segments if s["kind"] != "flat"]

@@ -236,13 +236,14 @@ def command_line(loco_set: locobench.LocoSet) -> str:
 
 
 def estimated_full_wall_s(results: Sequence[CaseResult], workers: int = 2) -> float | None:
-    """Wall time of the full set on `workers` processes, from these runs' wall time per simulated
-    second for each gait and contact model; None when a gait or contact model of the full set is missing."""
+    """Wall time of the full set on `workers` processes, from these runs' wall time per planned
+    second (`run.duration`; a course run ends at its arrival) for each gait and contact model; None
+    when a gait or contact model of the full set is missing."""
     rates: dict[tuple[str, str], list[float]] = {}
     for r in results:
-        if value(r, "sim_time_s") and value(r, "wall_s"):
+        if value(r, "wall_s"):
             run = r.case.config["run"]
-            rates.setdefault((run["gait"], run["contact"]), []).append(value(r, "wall_s") / value(r, "sim_time_s"))
+            rates.setdefault((run["gait"], run["contact"]), []).append(value(r, "wall_s") / run["duration"])
     total = 0.0
     for case in locobench.LocoSet().cases():
         key = (case.config["run"]["gait"], case.config["run"]["contact"])
@@ -286,7 +287,8 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
         f"jumps at every step edge and rough block, docs/control.md) after the start-up, from each run's metrics "
         f"JSON. Course runs walk to a target "
         f"{locobench.TARGET_BEYOND:g} m beyond the last feature (`gait.target`) at the gait's own speed (tripod "
-        f"0.1, ripple 0.06, wave 0.04 m/s: a 5 cm stride) and last the walk at that speed times "
+        f"0.1, ripple 0.06, wave 0.04 m/s: a 5 cm stride) and end 2 s after the robot stopped "
+        f"there (`gait.end_at_arrival`), at the latest after the walk at that speed times "
         f"{locobench.DURATION_MARGIN:g}, plus the start-up and 3 s. The terrain parameters and the run seeds "
         f"are drawn from a numpy Generator seeded per case (`testbed/tools/locobench.py`): none of them is a "
         f"setting anything was tuned on. Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC on "

@@ -124,14 +124,23 @@ def stance_support_on_terrain(support_raw, t, contact, swinging, feet, com, boxe
     polygon, margin, late = stance_support(support_raw, t, contact, swinging, feet, com, resting)
     if late == 0:
         return polygon, margin
+    resting = resting_feet(support_raw, feet, late, boxes_raw, candidates_by_rule(feet, rule_raw.view(CANDIDATE_RULE)))
+    polygon, margin, _ = stance_support(support_raw, t, contact, swinging, feet, com, resting)
+    return polygon, margin
+
+
+@njit(cache=True)
+def resting_feet(support_raw, feet, late, boxes_raw, candidates):
+    """(6,) bool: the feet among `late` (bits, leg i: 1 << i) whose sphere (the SUPPORT record's
+    foot_radius) lies within the record's ground_tolerance of the terrain's BOX records (bytes),
+    each foot among its row of `candidates`."""
     record, boxes = the_record(support_raw.view(SUPPORT)), boxes_raw.view(BOX)
-    candidates = candidates_by_rule(feet, rule_raw.view(CANDIDATE_RULE))
+    resting = np.zeros(len(feet), np.bool_)
     for leg in range(len(feet)):
         if (late >> leg) & 1:
             distance = closest_distance(feet[leg], boxes, candidates[leg])
             resting[leg] = distance - record.foot_radius <= record.ground_tolerance
-    polygon, margin, _ = stance_support(support_raw, t, contact, swinging, feet, com, resting)
-    return polygon, margin
+    return resting
 
 
 @njit(cache=True)

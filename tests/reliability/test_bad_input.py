@@ -44,6 +44,7 @@ DEEP = "[" * 20000 + "]" * 20000
     (["run", "--target", "1e308,1e308"], "within 1000 m"),
     (["run", "--target", "1e9,0"], "within 1000 m"),
     (["run", "--set", "run.time_step=1e-9"], "physics steps"),
+    (["run", "--set", "gait.end_at_arrival=true"], "needs a gait.target"),
     (["run", "--set", "robot.tibia_length=1e9", "--duration", "0.1"], "start pose"),
     (["run", "--config", "/dev/zero"], "not a regular file"),
     (["sweep", "--seeds", "1000000000", "--out", "{tmp}/sweep"], "--seeds"),

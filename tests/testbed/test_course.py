@@ -155,6 +155,33 @@ def test_binned_candidates_find_what_every_box_finds():
     assert 200 < (depth > 0).sum() < 1800
 
 
+def test_the_compiled_bin_lookup_gives_the_readable_ones_rows_on_and_off_the_table():
+    bins = course(seed=3)._bins
+    rng = np.random.default_rng(4)
+    points = rng.uniform([-3.0, -2.0, 0.0], [7.0, 2.0, 0.1], (3000, 3))       # the table spans [-1, 4.5] x [-0.6, 0.6]
+    points[:3, :2] = [[bins.x0, bins.y0], [bins.x0 + bins.size, bins.y0 - 1e-9], [bins.x0 - 1e-9, bins.y0 + 1.0]]
+    np.testing.assert_array_equal(bins.near(points), bins.near_readable(points))
+    assert (bins.near(points) != NO_BOX).any(axis=1).all()
+
+
+def test_the_support_check_finds_late_feet_resting_among_binned_candidates():
+    from testbed.runtime.runner import GROUND_TOLERANCE
+    from testbed.world.records import raw
+    from testbed.world.stability import resting_feet, support_record
+    terrain, radius = course(seed=3), 0.01
+    rng = np.random.default_rng(5)
+    xy = np.column_stack([rng.uniform(2.9, 3.7, 6), rng.uniform(-0.2, 0.2, 6)])     # over the rough patch
+    clearance = np.array([-0.002, 0.0, 0.0005, 0.0015, 0.01, 0.0009])               # m, the sphere above its ground
+    feet = np.column_stack([xy, np.zeros(6)])
+    for _ in range(30):     # the height under a foot's centre is not its sphere's ground near a block's edge: iterate
+        feet[:, 2] += radius + clearance - terrain.closest(feet)[0]
+    late = 0b101111                                                                  # leg 4 is not asked
+    candidates = np.ascontiguousarray(terrain.candidates(feet), dtype=np.int64)
+    resting = resting_feet(support_record(0.005, radius, GROUND_TOLERANCE), feet, late, raw(terrain.boxes.records),
+                           candidates)
+    np.testing.assert_array_equal(resting, [True, True, True, False, False, True])
+
+
 def test_no_box_candidates_count_as_absent():
     terrain = course(seed=3)
     points = np.array([[0.0, 0.0, 0.005], [2.0, 0.0, 0.19]])

@@ -55,3 +55,17 @@ def test_within_the_last_stride_the_walker_steps_sideways_to_the_target_without_
     (x, y, yaw), arrival = walk((4.0, 0.0), pose=(3.95, -0.03, 0.3))
     assert arrival is not None and np.hypot(x - 4.0, y) < 0.1 * CFG.gait.target_tolerance
     assert yaw == 0.3                                   # it never turned
+
+
+def test_a_walk_that_ends_at_arrival_ends_its_settle_time_after_the_robot_stopped_on_the_target():
+    from testbed.runtime.runner import ARRIVAL_SETTLE, run
+    walk_to = {"run": {"gait": "tripod", "duration": 16.0}, "gait": {"target": [0.3, 0.0]}}
+    whole = run(config.load(overrides=walk_to)).metrics
+    ending = run(config.load(overrides={**walk_to, "gait": {"target": [0.3, 0.0], "end_at_arrival": True}}))
+    arrived = ending.metrics["arrival_time_s"]
+    assert 5.0 < arrived < 16.0 - ARRIVAL_SETTLE
+    assert whole["arrival_time_s"] == arrived and whole["sim_time_s"] == pytest.approx(16.0)
+    assert ending.metrics["sim_time_s"] == pytest.approx(arrived + ARRIVAL_SETTLE, abs=0.011)
+    assert "arrived at the target" in ending.note
+    assert ending.metrics["target_error_m"] == pytest.approx(whole["target_error_m"], abs=0.002)
+    assert ending.metrics["target_error_m"] < 0.03

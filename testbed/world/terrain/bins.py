@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from testbed.world.terrain.geometry import NO_BOX, Boxes, box_footprints
 
@@ -47,7 +48,34 @@ class BoxBins:
         return table
 
     def near(self, points: np.ndarray) -> np.ndarray:
+        """(N, K) candidate boxes of (N, >= 2) points: `near_readable`, compiled (the compliant
+        contact and the support check ask it at every physics step)."""
+        return binned_candidates(np.ascontiguousarray(points, dtype=np.float64), self.x0, self.y0, self.size,
+                                 self.nx, self.ny, self.table)
+
+    def near_readable(self, points: np.ndarray) -> np.ndarray:
         """(N, K) candidate boxes of (N, >= 2) points."""
         ix = np.clip(np.floor((points[:, 0] - self.x0) / self.size).astype(np.int64), 0, self.nx - 1)
         iy = np.clip(np.floor((points[:, 1] - self.y0) / self.size).astype(np.int64), 0, self.ny - 1)
         return self.table[ix * self.ny + iy]
+
+
+@njit(cache=True)
+def binned_candidates(points, x0, y0, size, nx, ny, table):
+    """BoxBins.near_readable: each point's row of `table`, the bins being `size` squares from
+    (x0, y0), nx along x by ny along y (points off the table take the nearest bin's)."""
+    candidates = np.empty((len(points), table.shape[1]), np.int64)
+    for i in range(len(points)):
+        candidates[i] = table[_bin_index(points[i, 0], x0, size, nx) * ny + _bin_index(points[i, 1], y0, size, ny)]
+    return candidates
+
+
+@njit(cache=True)
+def _bin_index(coordinate, origin, size, count):
+    """The bin along one axis, clipped to the table (a NaN coordinate: the first)."""
+    position = (coordinate - origin) / size         # in bins
+    if not position >= 1.0:
+        return 0
+    if position >= count - 1:
+        return count - 1
+    return int(position)
