@@ -19,8 +19,10 @@ run: $(STAMP)
 	$(BIN)/testbed run --terrain step --gait tripod --estimator ekf --controller posture --duration 10 \
 		--out runs/main.mcap --rerun runs/main.rrd --metrics runs/main_metrics.json --force
 
+# The suite on TEST_WORKERS processes (pytest-xdist), a test file's tests on one of them.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The full benchmarks. Estimators: 5 terrains x 2 contacts x 3 IMU grades x 10 seeds x 30 s, the quad
 # accelerometer array and the gyro faults (380 walks, recorded on 2 processes and cached in the user's
