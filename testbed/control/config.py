@@ -99,6 +99,7 @@ class PostureConfig:
     search_depth: float
     touchdown_phase: float
     load_time: float
+    load_preload: float
     max_swing_height: float
     step_clearance: float
     edge_margin: float
@@ -120,6 +121,7 @@ class PostureConfig:
         require(0 < self.search_depth <= 0.1, f"posture.search_depth must lie in (0, 0.1] m, got {self.search_depth}")
         require(0 < self.touchdown_phase < 1, f"posture.touchdown_phase must lie in (0, 1), got {self.touchdown_phase}")
         require(0 <= self.load_time <= 0.5, f"posture.load_time must lie in [0, 0.5] s, got {self.load_time}")
+        require(0 <= self.load_preload <= 0.01, f"posture.load_preload must lie in [0, 0.01] m, got {self.load_preload}")
         non_negative("posture step adaptation", self.max_swing_height, self.step_clearance, self.edge_margin)
         require(0 <= self.slope_stance_shift <= 0.2,
                 f"posture.slope_stance_shift must lie in [0, 0.2] m, got {self.slope_stance_shift}")

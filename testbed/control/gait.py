@@ -129,6 +129,7 @@ class TerrainAdaptation:
     max_step_length: float = 0.0    # m, the longest stride the legs reach (a follower's aim at a foothold)
     slope_shift: float = 0.0    # m per unit of the ground's slope under the front feet: touch-downs move uphill
     load_time: float = 0.0      # s a foot landed on uneven ground keeps its contact before a leg lifts; 0: lift at once
+    load_preload: float = 0.0   # m such a foot is pressed below where it touched over its load time
 
     @property
     def follows_terrain(self) -> bool:
@@ -166,6 +167,7 @@ GAIT_PARAMETERS = np.dtype([
     ("max_step_length", "f8"),          # m, the longest stride the legs reach
     ("slope_shift", "f8"),              # m per unit slope, touch-downs move uphill
     ("load_time", "f8"),                # s a landed foot keeps its contact before a leg lifts
+    ("load_preload", "f8"),             # m it is pressed below where it touched meanwhile
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -175,6 +177,7 @@ GAIT_STATE = np.dtype([
     ("search_floor", "f8", 6),          # m, lowest a swing foot reaches down for ground
     ("lift", "f8", 6),                  # m, height of each leg's current swing
     ("loading", "f8", 6),               # s each landed foot still has to hold its contact; 0: loaded
+    ("pressed", "f8", 6),               # m each landed foot's target lies below where it touched
     ("raised", "f8", 6),                # m, extra height for a leg's next swing after a blocked one
     ("edge", "f8", (6, 2)),             # (x, z) of a riser a swing foot met, gait frame; x NaN: none
     ("footholds", "f8", (2, FOOTHOLDS, 3)),   # per side (left, right): where its front foot stood at its
@@ -221,6 +224,7 @@ class GaitGenerator:
                              ("clearance", search.clearance), ("max_swing_height", search.max_swing_height),
                              ("edge_margin", search.edge_margin), ("max_step_length", search.max_step_length),
                              ("slope_shift", search.slope_shift), ("load_time", search.load_time),
+                             ("load_preload", search.load_preload),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
@@ -437,6 +441,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         uneven = _off_the_stance_plane(feet, touched, swinging, p.neutral_height)
         # back in the air: on its ellipse again if its swing's time is not up, else searching
         swinging |= _slid_off(p.load_time, s.loading, touched & uneven, contact, swinging, dt)
+        _press_loading(feet, s.loading, s.pressed, swinging, p.load_preload, p.load_preload * dt / p.load_time)
     searching = swinging & ~now
     _store_flags(s.searching, searching)
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
@@ -539,6 +544,24 @@ def _slid_off(load_time, loading, touched, contact, swinging, dt):
             slid[leg] = not contact[leg]
             loading[leg] = 0.0 if slid[leg] else max(0.0, loading[leg] - dt)
     return slid
+
+
+@njit(cache=True)
+def _press_loading(feet, loading, pressed, swinging, preload, depth):
+    """Lower each foot still taking its load by `depth` (m) a tick, down to `preload` below
+    where it touched: pressed into the ground, it carries weight while the legs it relieves still
+    stand, and on an edge's corner it slides off now. A loaded foot rises back as fast."""
+    for leg in range(6):
+        if swinging[leg]:
+            pressed[leg] = 0.0
+        elif loading[leg] > 0.0:
+            step = min(depth, preload - pressed[leg])
+            feet[leg, 2] -= step
+            pressed[leg] += step
+        elif pressed[leg] > 0.0:
+            step = min(depth, pressed[leg])
+            feet[leg, 2] += step
+            pressed[leg] -= step
 
 
 @njit(cache=True)

@@ -338,7 +338,7 @@ def terrain_adaptation(config) -> TerrainAdaptation:
     return TerrainAdaptation(posture.search_speed, posture.search_depth, posture.touchdown_phase,
                              posture.walk_plane_time_constant, posture.step_clearance, posture.max_swing_height,
                              posture.edge_margin, config.gait.max_step_length, posture.slope_stance_shift,
-                             posture.load_time)
+                             posture.load_time, posture.load_preload)
 
 
 NO_TILT = (0.0, 0.0)

@@ -436,3 +436,36 @@ def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg
     assert not others[landed:relanded].any()
     first_lift = relanded + np.argmax(others[relanded:])
     assert others[first_lift] and (first_lift - relanded) * DT >= 0.06 - 1.5 * DT
+
+
+def test_a_foot_landed_on_uneven_ground_is_pressed_into_it_over_its_load_time_and_rises_back():
+    """The front left foot lands on a block 2 cm up: over the load time its target goes
+    `load_preload` below where it touched (it takes weight while the other tripod stands), then
+    rises back as fast once it holds; the other tripod lifts only after the load time."""
+    adaptation = dataclasses.replace(LOADING, load_preload=0.003)
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, adaptation)
+    ground = NEUTRAL[:, 2].copy()
+    ground[0] += 0.02
+    pressed, landed = [], None
+    for k in range(1, 1400):
+        feet = gait.state.feet
+        contact = feet[:, 2] <= ground + 1e-9
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], ground)
+        was_swinging = gait.state.swinging[0]
+        gait.step(k * DT, DT, Twist(vx=0.1), contact, measured)
+        if landed is None and k * DT > 0.6 and was_swinging and not gait.state.swinging[0]:
+            landed, touched = k, measured[0, 2] - gait.frame_drop
+            relieved_lift = None
+        if landed is not None:
+            # below the touch, in the frame that does not follow the walk plane
+            pressed.append(touched - (gait.state.feet[0, 2] + gait.frame_drop))
+            if relieved_lift is None and gait.state.swinging[[1, 3, 5]].any():
+                relieved_lift = k
+    pressed = np.array(pressed)
+    load_ticks = int(round(adaptation.load_time / DT))
+    assert pressed.max() == pytest.approx(0.003, abs=5e-5)          # +- a tick of the walk plane's following
+    assert np.argmax(pressed) == pytest.approx(load_ticks, abs=1)
+    assert np.all(np.diff(pressed[:load_ticks]) > 0)                 # down steadily
+    assert np.abs(pressed[2 * load_ticks + 2:]).max() < 5e-5       # back up, until it lifts
+    assert (relieved_lift - landed) * DT >= adaptation.load_time - 1.5 * DT

@@ -387,6 +387,13 @@ def test_a_step_the_feet_cannot_clear_or_reach_down_to_is_refused():
         config.load(None, {**rough, "terrain": {"rough_amplitude": 0.045}})
 
 
+@pytest.mark.parametrize("key, value", [("load_time", -0.01), ("load_time", 0.6),
+                                        ("load_preload", -0.001), ("load_preload", 0.02)])
+def test_a_load_transfer_outside_its_range_is_refused(key, value):
+    with pytest.raises(ConfigError, match=f"posture.{key} must lie in"):
+        config.load(None, {"posture": {key: value}})
+
+
 WALK = {"run": {"gait": "tripod", "estimator": "ekf", "controller": "posture"}}
 
 
