@@ -106,14 +106,22 @@ def run_gait(gait, seconds, command=Twist(vx=0.1), ground=None):
     targets go."""
     feet, swinging = [], []
     for k in range(1, int(round(seconds / DT)) + 1):
-        contact = measured = None
-        if ground is not None:
-            contact = gait.state.feet[:, 2] <= ground + 1e-9
-            measured = gait.state.feet.copy()
-            measured[:, 2] = np.maximum(measured[:, 2], ground)
-        feet.append(gait.step(k * DT, DT, command, contact, measured))
+        if ground is None:
+            feet.append(gait.step(k * DT, DT, command))
+        else:
+            feet.append(step_on_floor(gait, k, ground, command)[1])
         swinging.append(gait.state.swinging.copy())
     return np.array(feet), np.array(swinging)
+
+
+def step_on_floor(gait, k, ground, command=Twist(vx=0.1)):
+    """Tick k on a rigid floor (z per leg, body frame): a foot reports contact when its target
+    reaches the floor and stands on it however far below it its target goes. Returns (the feet
+    where they stand, the gait's targets)."""
+    contact = gait.state.feet[:, 2] <= ground + 1e-9
+    measured = gait.state.feet.copy()
+    measured[:, 2] = np.maximum(measured[:, 2], ground)
+    return measured, gait.step(k * DT, DT, command, contact, measured)
 
 
 def test_the_swing_command_leads_the_clock_and_stays_on_the_ellipse():
@@ -414,12 +422,8 @@ def test_a_foot_that_slides_off_as_it_takes_weight_searches_again_before_any_leg
     landed = slid = None
     heights, swinging = [], []
     for k in range(1, 2800):
-        feet = gait.state.feet
-        contact = feet[:, 2] <= ground + 1e-9
-        measured = feet.copy()
-        measured[:, 2] = np.maximum(feet[:, 2], ground)
         was_swinging = gait.state.swinging[0]
-        gait.step(k * DT, DT, Twist(vx=0.1), contact, measured)
+        step_on_floor(gait, k, ground)
         if landed is None and k * DT > 1.2 and was_swinging and not gait.state.swinging[0]:
             landed = k
         if landed is not None and slid is None and k == landed + 20:
@@ -448,12 +452,8 @@ def test_a_foot_landed_on_uneven_ground_is_pressed_into_it_over_its_load_time_an
     ground[0] += 0.02
     pressed, landed = [], None
     for k in range(1, 1400):
-        feet = gait.state.feet
-        contact = feet[:, 2] <= ground + 1e-9
-        measured = feet.copy()
-        measured[:, 2] = np.maximum(feet[:, 2], ground)
         was_swinging = gait.state.swinging[0]
-        gait.step(k * DT, DT, Twist(vx=0.1), contact, measured)
+        measured, _ = step_on_floor(gait, k, ground)
         if landed is None and k * DT > 0.6 and was_swinging and not gait.state.swinging[0]:
             landed, touched = k, measured[0, 2] - gait.frame_drop
             relieved_lift = None
