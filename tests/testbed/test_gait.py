@@ -450,13 +450,12 @@ def test_a_foot_landed_on_uneven_ground_is_pressed_into_it_over_its_load_time_an
     gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.03, adaptation)
     ground = NEUTRAL[:, 2].copy()
     ground[0] += 0.02
-    pressed, landed = [], None
+    pressed, landed, relieved_lift = [], None, None
     for k in range(1, 1400):
         was_swinging = gait.state.swinging[0]
         measured, _ = step_on_floor(gait, k, ground)
         if landed is None and k * DT > 0.6 and was_swinging and not gait.state.swinging[0]:
             landed, touched = k, measured[0, 2] - gait.frame_drop
-            relieved_lift = None
         if landed is not None:
             # below the touch, in the frame that does not follow the walk plane
             pressed.append(touched - (gait.state.feet[0, 2] + gait.frame_drop))
