@@ -554,14 +554,11 @@ def _press_loading(feet, loading, pressed, swinging, preload, depth):
     for leg in range(6):
         if swinging[leg]:
             pressed[leg] = 0.0
-        elif loading[leg] > 0.0:
-            step = min(depth, preload - pressed[leg])
-            feet[leg, 2] -= step
-            pressed[leg] += step
-        elif pressed[leg] > 0.0:
-            step = min(depth, pressed[leg])
-            feet[leg, 2] += step
-            pressed[leg] -= step
+            continue
+        wanted = preload if loading[leg] > 0.0 else 0.0
+        step = min(max(wanted - pressed[leg], -depth), depth)
+        feet[leg, 2] -= step
+        pressed[leg] += step
 
 
 @njit(cache=True)
