@@ -254,11 +254,7 @@ def walk_over(gait, seconds, floor_at, speed=0.1):
     rows = []
     for k in range(1, int(round(seconds / DT)) + 1):
         body = gait.clock((k - 1) * DT) * speed         # the body stands while the clock waits
-        feet = gait.state.feet
-        floor = floor_at(feet[:, 0] + body)
-        measured = feet.copy()
-        measured[:, 2] = np.maximum(feet[:, 2], floor)
-        gait.step(k * DT, DT, Twist(vx=speed), feet[:, 2] <= floor + 1e-9, measured)
+        step_on_floor(gait, k, floor_at(gait.state.feet[:, 0] + body), Twist(vx=speed))
         body = gait.clock(k * DT) * speed
         rows.append((gait.state.feet[:, 0] + body, gait.state.feet[:, 2].copy(), gait.state.swinging.copy()))
     world_x, height, swinging = (np.array(column) for column in zip(*rows))
