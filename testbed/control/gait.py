@@ -55,6 +55,13 @@ class GaitPattern:
     def walks(self) -> bool:
         return self.duty < 1.0
 
+    @property
+    def fewest_feet_down(self) -> int:
+        """The fewest legs in stance at any time of the cycle. The most legs swing together at
+        some leg's swing start: counted just after it (a millionth of a cycle)."""
+        return 6 - max(sum((start + 1e-6 - other + self.duty) % 1.0 >= self.duty for other in self.swing_start)
+                       for start in self.swing_start)
+
 
 # Legs are numbered counter-clockwise from the front left (1 FL, 2 ML, 3 RL, 4 RR, 5 MR, 6 FR).
 STAND = GaitPattern(1.0, (0.0,) * 6)
@@ -97,6 +104,17 @@ SLOPE_SHIFT_LIMIT = 0.04
 # m off the plane of the feet that stood before it: a landing on uneven ground takes its load
 # before the legs it relieves lift (TerrainAdaptation.load_time)
 UNEVEN_LANDING = 0.005
+# The landing reach, the lost-ground wait and the foothold heights (`_at_foothold_heights`) are
+# for gaits whose swings leave three feet down or fewer (the tripod): with four or more down
+# (ripple, wave) the support holds without any one foot, and on rigid ground their lightly loaded
+# feet read no ground for long stretches (docs/control.md, "Structure", item 1).
+# m: a swing with terrain adaptation ends this far below the ground it expects, so that the foot,
+# lagging its target, still meets level ground within its swing instead of searching for it at
+# the gait clock's expense.
+LANDING_REACH = 0.004
+# s a standing foot's sensor reads no ground before the foot counts as having lost it (a landing
+# on rigid ground chatters for a few milliseconds): the legs it would relieve wait meanwhile.
+LOST_GROUND_TIME = 0.02
 
 
 class Twist(NamedTuple):
@@ -168,6 +186,7 @@ GAIT_PARAMETERS = np.dtype([
     ("slope_shift", "f8"),              # m per unit slope, touch-downs move uphill
     ("load_time", "f8"),                # s a landed foot keeps its contact before a leg lifts
     ("load_preload", "f8"),             # m it is pressed below where it touched meanwhile
+    ("on_three_feet", "u1"),            # the pattern's swings leave three feet down or fewer
     ("swing_start", "f8", 6),           # per leg, fraction of the cycle at which its swing starts
     ("neutral", "f8", (6, 3)),          # the start stance, body frame
 ])
@@ -178,6 +197,7 @@ GAIT_STATE = np.dtype([
     ("lift", "f8", 6),                  # m, height of each leg's current swing
     ("loading", "f8", 6),               # s each landed foot still has to hold its contact; 0: loaded
     ("pressed", "f8", 6),               # m each landed foot's target lies below where it touched
+    ("ungrounded", "f8", 6),            # s each standing foot's sensor has read no ground
     ("raised", "f8", 6),                # m, extra height for a leg's next swing after a blocked one
     ("edge", "f8", (6, 2)),             # (x, z) of a riser a swing foot met, gait frame; x NaN: none
     ("footholds", "f8", (2, FOOTHOLDS, 3)),   # per side (left, right): where its front foot stood at its
@@ -225,6 +245,7 @@ class GaitGenerator:
                              ("edge_margin", search.edge_margin), ("max_step_length", search.max_step_length),
                              ("slope_shift", search.slope_shift), ("load_time", search.load_time),
                              ("load_preload", search.load_preload),
+                             ("on_three_feet", pattern.fewest_feet_down <= 3),
                              ("swing_start", self.swing_start), ("neutral", self.neutral)):
             self.parameters[field] = value
         self.state_record = record = np.zeros(1, GAIT_STATE)
@@ -442,6 +463,13 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         # back in the air: on its ellipse again if its swing's time is not up, else searching
         swinging |= _slid_off(p.load_time, s.loading, touched & uneven, contact, swinging, dt)
         _press_loading(feet, s.loading, s.pressed, swinging, p.load_preload, p.load_preload * dt / p.load_time)
+    unsure = False      # a foot that would carry the body reads no ground, not yet for long
+    on_three_feet = follows_terrain and p.on_three_feet != 0
+    if on_three_feet:
+        _time_ungrounded(s.ungrounded, swinging, contact, dt)
+        if lifting.any():
+            lost, unsure = _lost_ground(feet, search_floor, swinging | lifting, s.ungrounded)
+            swinging |= lost
     searching = swinging & ~now
     _store_flags(s.searching, searching)
     _store_flags(s.landing, swinging & (~now | (progress >= RISING_HALF)))
@@ -451,7 +479,7 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
             _remember_landings(s, searching & ~swinging)     # down at the bottom of the search
         _store_flags(s.swinging, swinging)
         return True, 0.0
-    if lifting.any() and _still_loading(s.loading, swinging, lifting):
+    if lifting.any() and (unsure or _still_loading(s.loading, swinging, lifting)):
         _store_flags(s.swinging, swinging)
         return True, 0.0
     _copy_rows(liftoff, feet, lifting)
@@ -477,6 +505,10 @@ def _adaptive_step(t, dt, twist, contact, measured, parameters, state, phase):
         plane_height, slope_x, slope_y = walk_plane(feet, ~swinging, p.neutral_height)
         for leg in range(6):
             touchdown[leg, 2] = plane_height + touchdown[leg, 0] * slope_x + touchdown[leg, 1] * slope_y
+        if on_three_feet:
+            if raises:
+                _at_foothold_heights(s, touchdown, swinging)
+            touchdown[:, 2] -= LANDING_REACH
     _move_stance(feet, ~swinging, twist, dt)
     if raises:
         _move_edges(s.edge, twist, feet, dt)
@@ -526,6 +558,28 @@ def _off_the_stance_plane(feet, touched, swinging, neutral_height):
             ground = plane_height + slope_x * feet[leg, 0] + slope_y * feet[leg, 1]
             uneven[leg] = abs(feet[leg, 2] - ground) > UNEVEN_LANDING
     return uneven
+
+
+@njit(cache=True)
+def _time_ungrounded(ungrounded, swinging, contact, dt):
+    for leg in range(6):
+        ungrounded[leg] = ungrounded[leg] + dt if not swinging[leg] and not contact[leg] else 0.0
+
+
+@njit(cache=True)
+def _lost_ground(feet, search_floor, moving, ungrounded):
+    """The feet that will carry the body when the legs `moving` lift, and whose sensors have read
+    no ground for LOST_GROUND_TIME (one landed on a corner that gave way, or its sensor caught a
+    block's side for a moment): they search for ground again first, unless already at the bottom
+    of their search. And whether another of them reads no ground, not yet for that long."""
+    lost = np.zeros(6, dtype=np.bool_)
+    unsure = False
+    for leg in range(6):
+        if moving[leg] or ungrounded[leg] == 0.0 or feet[leg, 2] <= search_floor[leg]:
+            continue
+        lost[leg] = ungrounded[leg] >= LOST_GROUND_TIME
+        unsure |= not lost[leg]
+    return lost, unsure
 
 
 @njit(cache=True)
@@ -772,6 +826,16 @@ def _onto_footholds(s, touchdown, swinging):
     for leg in range(6):
         if swinging[leg] and s.aim[leg] >= 0:
             touchdown[leg, 0] = s.stood[_side(leg), s.aim[leg], 0] + s.aim_offset[leg]
+
+
+@njit(cache=True)
+def _at_foothold_heights(s, touchdown, swinging):
+    """A swing aimed at a proven foothold comes down to the height its foot stood at there, not
+    to the stance feet's plane: past an edge the plane is the other level's (a stair down, the
+    foot would search the rest of the way with the gait clock waiting)."""
+    for leg in range(6):
+        if swinging[leg] and s.aim[leg] >= 0:
+            touchdown[leg, 2] = s.stood[_side(leg), s.aim[leg], 2]
 
 
 @njit(cache=True)

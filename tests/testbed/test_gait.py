@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from testbed.runtime import config
-from testbed.control.gait import (FOOTHOLD_MARGIN, FOOTHOLD_REACH, FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, TerrainAdaptation, Twist,
+from testbed.control.gait import (FOOTHOLD_MARGIN, FOOTHOLD_REACH, FOOTHOLDS, GAITS, STANCE_SETTLE_TIME, GaitGenerator, GaitPattern, TerrainAdaptation, Twist,
                                   footholds_slope, walk_plane)
 from testbed.model.kinematics import LegGeometry, nominal_stance
 
@@ -247,16 +247,20 @@ STEPPING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phas
                              clearance=0.02, max_swing_height=0.08, edge_margin=0.03, max_step_length=0.08)
 
 
-def walk_over(gait, seconds, floor_at, speed=0.1):
+def walk_over(gait, seconds, floor_at, speed=0.1, searching=None):
     """Walk `seconds` at `speed` over a rigid floor whose height (body frame) at world x is
-    `floor_at(x)` (vectorised): a foot reports contact when its target reaches the floor under
-    it and stands on it. Returns the world x, the height and the swing flag of every foot per tick."""
+    `floor_at(x)` (vectorised), moved with the gait frame's walk-plane following: a foot reports
+    contact when its target reaches the floor under it and stands on it. Returns the world x, the
+    height and the swing flag of every foot per tick; appends each tick's searching flags to the
+    list `searching` if one is given."""
     rows = []
     for k in range(1, int(round(seconds / DT)) + 1):
         body = gait.clock((k - 1) * DT) * speed         # the body stands while the clock waits
-        step_on_floor(gait, k, floor_at(gait.state.feet[:, 0] + body), Twist(vx=speed))
+        step_on_floor(gait, k, floor_at(gait.state.feet[:, 0] + body) - gait.frame_drop, Twist(vx=speed))
         body = gait.clock(k * DT) * speed
         rows.append((gait.state.feet[:, 0] + body, gait.state.feet[:, 2].copy(), gait.state.swinging.copy()))
+        if searching is not None:
+            searching.append(gait.state_record[0]["searching"].astype(bool))
     world_x, height, swinging = (np.array(column) for column in zip(*rows))
     return world_x, height, swinging
 
@@ -300,7 +304,9 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     rear_flat = world_x[landings(swinging, 2), 2]
     edge = middle_flat[middle_flat > 0.3][0] - 0.005
     floor_at = lambda x: np.where(x >= edge, ground - drop, ground)
-    world_x, height, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, following), 9.0, floor_at)
+    searching = []
+    world_x, height, swinging = walk_over(GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, following), 9.0, floor_at,
+                                          searching=searching)
     front_stood = world_x[np.flatnonzero(np.diff(swinging[:, 0].astype(int)) == 1), 0]
     for leg in (1, 2):
         landed = world_x[landings(swinging, leg), leg]
@@ -309,6 +315,10 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     middle = world_x[landings(swinging, 1), 1]
     aimed = middle[np.abs(middle - edge) < 0.03]
     assert len(aimed) == 1
+    # aimed at the foothold on the lower level, its swing comes down to it: it does not search
+    aimed_landing = landings(swinging, 1)[np.abs(middle - edge) < 0.03][0]
+    assert aimed[0] > edge
+    assert not np.array(searching)[aimed_landing - 300:aimed_landing, 1].any()
     # beyond the front foothold nearest it, on the side away from the edge, by at most the margin
     # (less where the legs reach no further)
     foothold = front_stood[np.argmin(np.abs(front_stood - aimed[0]))]
@@ -320,7 +330,112 @@ def test_middle_and_rear_feet_land_on_the_front_feet_footholds_around_an_edge():
     reach = 0.5 * (STEPPING.max_step_length - speed * 0.5) + FOOTHOLD_REACH
     assert foothold - planned > reach
     rear = world_x[landings(swinging, 2), 2]
-    assert np.abs(rear - (planned + reach)).min() < 1e-3
+    # it touches the floor LANDING_REACH above its swing's end, a little short of the end's x
+    assert np.abs(rear - (planned + reach)).min() < 2e-3
+
+
+def test_feet_that_lag_their_targets_meet_level_ground_within_their_swings():
+    """Feet that follow their targets with a 10 ms lag (the servos) over a level floor: a swing
+    ends LANDING_REACH below the ground it expects, so the lagging foot still meets the floor
+    before its swing's time is up, and the gait clock never waits for a foot to search."""
+    following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, following)
+    feet = gait.state.feet.copy()
+    for k in range(1, 6001):
+        feet += (gait.state.feet - feet) * DT / 0.01
+        floor = NEUTRAL[0, 2] - gait.frame_drop
+        feet[:, 2] = np.maximum(feet[:, 2], floor)
+        gait.step(k * DT, DT, Twist(vx=0.1), feet[:, 2] <= floor + 1e-9, feet.copy())
+    assert gait.waited == 0.0
+    assert gait.clock(6.0) == 6.0
+
+
+def walk_losing_contact(lost, lost_for, gait_name="tripod"):
+    """A walk on a level floor where leg `lost`'s sensor reads no ground for `lost_for` s from
+    the tick after it lands past 2 s. Returns when it landed, when another leg next lifted after
+    that, and the ticks' times and leg `lost`'s searching flags."""
+    following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
+    gait = GaitGenerator(gait_name, NEUTRAL, 1.0, 0.05, following)
+    floor = NEUTRAL[0, 2] - 0.002       # the floor a little lower than the legs expect it
+    others = [leg for leg in range(6) if leg != lost]
+    landed, lift = np.inf, np.inf
+    rows = []
+    for k in range(1, 3001):
+        t, feet = k * DT, gait.state.feet
+        was_swinging = gait.state.swinging.copy()
+        ground = floor - gait.frame_drop
+        contact = feet[:, 2] <= ground + 1e-9
+        if landed < t <= landed + lost_for:
+            contact[lost] = False
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], ground)
+        gait.step(t, DT, Twist(vx=0.1), contact, measured)
+        if t > 2.0 and landed == np.inf and was_swinging[lost] and not gait.state.swinging[lost]:
+            landed = t
+        if landed < t and lift == np.inf and (gait.state.swinging & ~was_swinging)[others].any():
+            lift = t
+        rows.append((t, gait.state_record[0]["searching"][lost] != 0))
+    t, searching = (np.array(column) for column in zip(*rows))
+    return landed, lift, t, searching
+
+
+def test_a_foot_that_lost_its_ground_searches_again_before_the_others_lift():
+    """A stance foot whose sensor reads no ground for LOST_GROUND_TIME or longer when the other
+    tripod is due to lift (it landed on a corner that gave way, or grazed a block's side) reaches
+    down for ground again, and the other tripod waits on the ground until it has found it."""
+    landed, lift, t, searching = walk_losing_contact(lost=1, lost_for=0.03)
+    # the other tripod was due to lift within those 30 ms (as soon as the foot had landed)
+    assert landed + 0.03 < 2.6
+    searched = t[searching & (t > landed)]
+    assert len(searched) > 0 and searched[0] < landed + 0.03
+    assert lift > landed + 0.03
+    assert lift > searched[-1]
+
+
+def test_a_foot_whose_sensor_chatters_holds_the_lift_without_searching():
+    """A landed foot's sensor that reads no ground for less than LOST_GROUND_TIME (a landing on
+    rigid ground chatters): the other tripod waits until it reads ground again, and the foot
+    does not search."""
+    landed, lift, t, searching = walk_losing_contact(lost=1, lost_for=0.015)
+    # the other tripod was due to lift 11 ms after the landing, within those 15 ms
+    assert lift > landed + 0.015
+    assert lift < landed + 0.02
+    assert not searching[t > landed].any()
+
+
+@pytest.mark.parametrize("gait_name", ["ripple", "wave"])
+def test_with_four_feet_down_or_more_a_foot_without_ground_holds_no_lift(gait_name):
+    """Ripple and wave leave four or five feet down: a foot whose sensor reads no ground for
+    0.2 s (more than the time between two lifts) neither searches again nor holds the next lift
+    (on rigid ground their lightly loaded feet read no ground for long stretches)."""
+    _, lift, t, searching = walk_losing_contact(lost=1, lost_for=0.0, gait_name=gait_name)
+    landed, lift_losing, t, searching = walk_losing_contact(lost=1, lost_for=0.2, gait_name=gait_name)
+    assert landed + 0.2 > lift_losing
+    assert lift_losing == lift
+    assert not searching[t > landed].any()
+
+
+def test_only_gaits_that_leave_three_feet_down_or_fewer_stand_on_three_feet():
+    assert [GAITS.resolve(name).fewest_feet_down for name in ("tripod", "ripple", "wave", "stand")] == [3, 4, 5, 6]
+    assert GaitPattern(0.5, (0.0,) * 6).fewest_feet_down == 0
+    for name, on_three in (("tripod", 1), ("ripple", 0), ("wave", 0)):
+        assert GaitGenerator(name, NEUTRAL, 1.0, 0.05, STEPPING).parameters["on_three_feet"][0] == on_three
+
+
+def test_a_foot_at_the_bottom_of_its_search_does_not_hold_the_walk():
+    """A foot whose ground lies deeper than its search reaches lands at the search's bottom, in
+    the air; it has nothing left to search, so the other legs lift on schedule after it."""
+    shallow = dataclasses.replace(STEPPING, plane_time_constant=0.3, search_depth=0.01)
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, shallow)
+    floor = NEUTRAL[:, 2].copy()
+    floor[1] -= 0.2                         # the left middle foot's ground is out of its reach
+    for k in range(1, 4001):
+        feet, ground = gait.state.feet, floor - gait.frame_drop
+        measured = feet.copy()
+        measured[:, 2] = np.maximum(feet[:, 2], ground)
+        gait.step(k * DT, DT, Twist(vx=0.1), feet[:, 2] <= ground + 1e-9, measured)
+    # it searched 1 cm at 0.1 m/s in each of its four swings, the clock waiting 0.1 s each time
+    assert gait.waited == pytest.approx(0.4, abs=0.05)
 
 
 def test_the_ground_slope_is_read_from_the_front_footholds_only_where_they_lie_on_a_line():
