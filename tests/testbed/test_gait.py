@@ -14,6 +14,7 @@ CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
 NEUTRAL = nominal_stance(GEOM, CFG.robot.stance_radius, CFG.robot.stance_height, CFG.robot.foot_radius)
 DT = 0.001
+NO_LEG = np.zeros(6, dtype=bool)     # step_on_floor: every sensor reads its ground
 # Neighbours around the body (legs numbered counter-clockwise, 0-based here).
 ADJACENT = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0)]
 
@@ -114,11 +115,11 @@ def run_gait(gait, seconds, command=Twist(vx=0.1), ground=None):
     return np.array(feet), np.array(swinging)
 
 
-def step_on_floor(gait, k, ground, command=Twist(vx=0.1)):
+def step_on_floor(gait, k, ground, command=Twist(vx=0.1), silent=NO_LEG):
     """Tick k on a rigid floor (z per leg, body frame): a foot reports contact when its target
-    reaches the floor and stands on it however far below it its target goes. Returns (the feet
-    where they stand, the gait's targets)."""
-    contact = gait.state.feet[:, 2] <= ground + 1e-9
+    reaches the floor and stands on it however far below it its target goes, but for the legs
+    whose sensors are `silent` (a (6,) mask). Returns (the feet where they stand, the gait's targets)."""
+    contact = (gait.state.feet[:, 2] <= ground + 1e-9) & ~silent
     measured = gait.state.feet.copy()
     measured[:, 2] = np.maximum(measured[:, 2], ground)
     return measured, gait.step(k * DT, DT, command, contact, measured)
@@ -361,15 +362,10 @@ def walk_losing_contact(lost, lost_for, gait_name="tripod"):
     landed, lift = np.inf, np.inf
     rows = []
     for k in range(1, 3001):
-        t, feet = k * DT, gait.state.feet
+        t = k * DT
         was_swinging = gait.state.swinging.copy()
-        ground = floor - gait.frame_drop
-        contact = feet[:, 2] <= ground + 1e-9
-        if landed < t <= landed + lost_for:
-            contact[lost] = False
-        measured = feet.copy()
-        measured[:, 2] = np.maximum(feet[:, 2], ground)
-        gait.step(t, DT, Twist(vx=0.1), contact, measured)
+        silent = (np.arange(6) == lost) if landed < t <= landed + lost_for else NO_LEG
+        step_on_floor(gait, k, floor - gait.frame_drop, silent=silent)
         if t > 2.0 and landed == np.inf and was_swinging[lost] and not gait.state.swinging[lost]:
             landed = t
         if landed < t and lift == np.inf and (gait.state.swinging & ~was_swinging)[others].any():
