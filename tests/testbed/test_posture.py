@@ -467,6 +467,21 @@ def test_the_body_crouches_so_that_the_legs_reach_down_a_20_degree_ramp(angle):
     assert crouched["height_error_rms_m"] < 0.008
 
 
+@pytest.mark.slow
+def test_the_body_crouches_so_that_the_wave_gaits_rear_legs_reach_down_the_stairs():
+    """Up three 4.4 cm stairs on 16 cm treads in the wave gait: at the end of its long stance a
+    rear foot stands a rise below the front feet and its leg reaches past its length unless the
+    body lowers by more than 3 cm."""
+    course = [{"kind": "flat", "length": 0.8}, {"kind": "stairs", "steps": 3, "rise": 0.044, "tread": 0.161},
+              {"kind": "flat", "length": 1.0}]
+    cfg = config.load(None, {"run": {**WALK["run"], "gait": "wave", "terrain": "course", "duration": 40.0, "seed": 1},
+                             "gait": {"speed": 0.04}, "terrain": {"course": course}})
+    crouched = run(cfg).metrics
+    shallow = run(cfg.replace(posture={"max_crouch": 0.03})).metrics
+    assert not crouched["fell"] and crouched["ik_limited_ticks"] == 0 and crouched["edge_tilt_max_deg"] < 1.0
+    assert shallow["ik_limited_ticks"] > 300 and shallow["edge_tilt_max_deg"] > 1.2
+
+
 @pytest.mark.parametrize("angle", [20.0, -20.0])
 def test_the_body_stands_low_enough_through_the_calibration_poses_on_a_20_degree_slope(angle):
     """Standing on a 20 degree slope, the 12 degree calibration poses put the downhill feet past the
