@@ -359,12 +359,13 @@ def walk_losing_contact(lost, lost_for, gait_name="tripod"):
     gait = GaitGenerator(gait_name, NEUTRAL, 1.0, 0.05, following)
     floor = NEUTRAL[0, 2] - 0.002       # the floor a little lower than the legs expect it
     others = [leg for leg in range(6) if leg != lost]
+    lost_leg = np.arange(6) == lost
     landed, lift = np.inf, np.inf
     rows = []
     for k in range(1, 3001):
         t = k * DT
         was_swinging = gait.state.swinging.copy()
-        silent = (np.arange(6) == lost) if landed < t <= landed + lost_for else NO_LEG
+        silent = lost_leg if landed < t <= landed + lost_for else NO_LEG
         step_on_floor(gait, k, floor - gait.frame_drop, silent=silent)
         if t > 2.0 and landed == np.inf and was_swinging[lost] and not gait.state.swinging[lost]:
             landed = t
