@@ -358,7 +358,6 @@ def walk_losing_contact(lost, lost_for, gait_name="tripod"):
     following = dataclasses.replace(STEPPING, plane_time_constant=0.3)
     gait = GaitGenerator(gait_name, NEUTRAL, 1.0, 0.05, following)
     floor = NEUTRAL[0, 2] - 0.002       # the floor a little lower than the legs expect it
-    others = [leg for leg in range(6) if leg != lost]
     lost_leg = np.arange(6) == lost
     landed, lift = np.inf, np.inf
     rows = []
@@ -369,7 +368,7 @@ def walk_losing_contact(lost, lost_for, gait_name="tripod"):
         step_on_floor(gait, k, floor - gait.frame_drop, silent=silent)
         if t > 2.0 and landed == np.inf and was_swinging[lost] and not gait.state.swinging[lost]:
             landed = t
-        if landed < t and lift == np.inf and (gait.state.swinging & ~was_swinging)[others].any():
+        if landed < t and lift == np.inf and (gait.state.swinging & ~was_swinging & ~lost_leg).any():
             lift = t
         rows.append((t, gait.state_record[0]["searching"][lost] != 0))
     t, searching = (np.array(column) for column in zip(*rows))
