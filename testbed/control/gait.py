@@ -662,7 +662,10 @@ def _plan_lifts(parameters, s, lifting, stance):
 def _short_of_edges(parameters, s, touched, measured, stance):
     """The swing feet among `touched` that touched ground on their way down higher than both
     the stance feet's plane and their swing's start by more than RISER_HEIGHT (a step's top, met
-    from above) or short of a riser they met: they do not land yet. The first such touch is
+    from above), or, aimed at a foothold lower than their start by more than RISER_HEIGHT, within
+    RISER_HEIGHT of their start's height and short of that foothold (the upper tread's corner, met
+    on the way down a step: the foot that stood there stood at least its radius beyond the edge),
+    or short of a riser they met: they do not land yet. The first such touch is
     remembered as an edge, so that the foot keeps clear above it and lands `edge_margin` beyond
     it, not on the corner it may have met; a later touch short of it, higher than the edge, raises
     the edge to where the foot is (a riser met on the way down: elevator reflex)."""
@@ -674,6 +677,12 @@ def _short_of_edges(parameters, s, touched, measured, stance):
             continue
         x, y, z = measured[leg, 0], measured[leg, 1], measured[leg, 2]
         ground = max(plane_height + slope_x * x + slope_y * y, s.liftoff[leg, 2])
+        if s.aim[leg] >= 0:
+            foothold = s.stood[_side(leg), s.aim[leg]]
+            aimed = foothold[2]
+            if aimed < s.liftoff[leg, 2] - RISER_HEIGHT and abs(z - s.liftoff[leg, 2]) < RISER_HEIGHT \
+                    and x < foothold[0]:
+                ground = aimed
         if math.isnan(s.edge[leg, 0]):
             if z - ground > RISER_HEIGHT:
                 s.edge[leg, 0], s.edge[leg, 1] = x, z

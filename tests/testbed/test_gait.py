@@ -498,6 +498,34 @@ def test_a_swing_foot_short_of_the_riser_it_met_holds_its_place_until_it_is_up_a
     assert s["edge"][0, 1] == pytest.approx(ground + 0.04)
 
 
+def test_a_follower_aimed_down_a_step_does_not_land_on_the_upper_treads_corner():
+    """The left rear foot lifted on the upper level and aims at a foothold 4.2 cm lower, beyond a
+    step down. A touch on its way down at about its lift-off height, short of that foothold, is
+    the upper tread's corner: an edge, where it does not land (without the aim it would); a
+    touch at the foothold's height lands, and so does one at the lift-off height beyond the
+    foothold (ground as rough blocks place it: the foothold's recorded height is off)."""
+    from testbed.control.gait import _short_of_edges
+    gait = GaitGenerator("tripod", NEUTRAL, 1.0, 0.05, STEPPING)
+    parameters, s = gait.parameters, gait.state_record[0]
+    rear, ground = 2, NEUTRAL[2, 2]
+    s["liftoff"][rear] = (-0.20, NEUTRAL[rear, 1], ground)
+    s["stood"][0, 0] = (-0.05, NEUTRAL[rear, 1], ground - 0.042)
+    s["stood_count"][0] = 1
+    touched = np.zeros(6, dtype=bool)
+    touched[rear] = True
+    measured = gait.state.feet.copy()
+    measured[rear] = (-0.08, NEUTRAL[rear, 1], ground - 0.002)
+    assert not _short_of_edges(parameters, s, touched, measured, ~touched)[rear]       # no aim: it lands
+    s["aim"][rear] = 0
+    assert _short_of_edges(parameters, s, touched, measured, ~touched)[rear]
+    assert tuple(s["edge"][rear]) == pytest.approx((-0.08, ground - 0.002))
+    s["edge"][rear] = np.nan
+    measured[rear] = (-0.06, NEUTRAL[rear, 1], ground - 0.041)
+    assert not _short_of_edges(parameters, s, touched, measured, ~touched)[rear]
+    measured[rear] = (-0.045, NEUTRAL[rear, 1], ground - 0.002)
+    assert not _short_of_edges(parameters, s, touched, measured, ~touched)[rear]
+
+
 LOADING = TerrainAdaptation(search_speed=0.1, search_depth=0.06, touchdown_phase=0.5, plane_time_constant=0.3,
                             load_time=0.06)
 
