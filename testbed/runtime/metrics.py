@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 from estimators.scoring import METRIC_KEYS, StreamingScore, contact_planes
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
-from testbed.world.terrain.base import EDGE, ROUGH_PATCH, TerrainFeature
+from testbed.world.stability import GROUND_TOLERANCE
+from testbed.world.terrain.base import EDGE, ROUGH_PATCH, Terrain, TerrainFeature
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
 SETTLE_TIME = 0.5     # s, the robot lands on its feet: the stability margin counts after this
@@ -36,7 +37,7 @@ class RunMetrics:
 
     BLOCK_STEPS = StreamingScore.BLOCK_STEPS
 
-    def __init__(self, config: Config, weight: float, features: Sequence[TerrainFeature] = ()):
+    def __init__(self, config: Config, weight: float, terrain: Terrain):
         self.config = config
         self.weight = weight
         self.window_start = config.run.duration - WEIGHT_WINDOW - 0.5 * config.run.time_step
@@ -50,7 +51,7 @@ class RunMetrics:
         self.last_xy = np.zeros(2)
         self._rows: list[tuple] = []      # the block being gathered, per tick: t, quaternion, body position, feet, contact
         self._estimates: list = []        # estimates of those ticks
-        self.posture = PostureSums(config, features)
+        self.posture = PostureSums(config, terrain)
         self.scoring = StreamingScore(config.robot.foot_radius)
 
     def add(self, tick: Tick) -> None:
@@ -78,7 +79,7 @@ class RunMetrics:
             return
         t, quaternion, position, feet, contact = (np.array(column) for column in zip(*self._rows))
         self.last_xy = position[-1, :2].copy()
-        self.posture.add(t, quaternion, position, feet, contact)
+        self.posture.add(t, quaternion, position, feet)
         if self._estimates:
             self.scoring.add_estimates(self._estimates)
         self.scoring.add_truth(t, quaternion, position, feet, contact)
@@ -123,13 +124,17 @@ class PostureSums:
     the body on purpose): running sums over blocks of steps.
 
     The ground the feet stand on is the least-squares plane through the true ground points of
-    the feet in contact (`support_plane_heights`), under the body centre. Not the terrain under
+    the feet on the ground (`support_plane_heights`), under the body centre. Not the terrain under
     the body centre: that jumps by a step's height when the centre passes over its edge, and by
-    a block's on rough ground, while no body standing on its legs can (docs/control.md)."""
+    a block's on rough ground, while no body standing on its legs can (docs/control.md). A foot is
+    on the ground when its sphere lies within GROUND_TOLERANCE of the terrain (`feet_on_ground`),
+    whatever the contact model: DART's rigid contact reports loaded, resting feet out of contact
+    for 4-50 ms at a time, and each such gap would fit the plane through another set of feet."""
 
-    def __init__(self, config: Config, features: Sequence[TerrainFeature] = ()):
+    def __init__(self, config: Config, terrain: Terrain):
         self.stance_height = config.robot.stance_height
         self.foot_radius = config.robot.foot_radius
+        self.terrain = terrain
         self.skip_until = max(POSTURE_SKIP, config.startup_time)
         self.count = 0
         self.tilt_squares = 0.0
@@ -137,22 +142,23 @@ class PostureSums:
         self.height_squares = 0.0
         self.height_count = 0
         self.last_height = math.nan      # m, the last tick's, for ticks with fewer than three feet down
-        self.crossings = CrossingTilts(features)
+        self.crossings = CrossingTilts(terrain.features())
 
-    def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray, feet: np.ndarray,
-            contact: np.ndarray) -> None:
+    def add(self, t: np.ndarray, quaternions: np.ndarray, positions: np.ndarray, feet: np.ndarray) -> None:
         keep = t >= self.skip_until
         if not keep.any():
             return
         tilt = body_tilt_deg(quaternions[keep])
-        height = support_plane_heights(positions[keep], feet[keep], contact[keep], self.foot_radius)
+        feet = feet[keep]
+        on_ground = feet_on_ground(self.terrain, feet, self.foot_radius)
+        height = support_plane_heights(positions[keep], feet, on_ground, self.foot_radius)
         height = carried_forward(height, self.last_height)
         self.last_height = float(height[-1])
         error = height[np.isfinite(height)] - self.stance_height
         self.count += len(tilt)
         self.tilt_squares += float(np.sum(tilt ** 2))
         self.tilt_max = max(self.tilt_max, float(tilt.max()))
-        self.crossings.add(t[keep], tilt, feet[keep, :, 0])
+        self.crossings.add(t[keep], tilt, feet[:, :, 0])
         self.height_squares += float(np.sum(error ** 2))
         self.height_count += len(error)
 
@@ -215,6 +221,12 @@ def support_plane_heights(body: np.ndarray, feet: np.ndarray, contact: np.ndarra
     `estimators.scoring.contact_planes`); NaN where that gives no plane."""
     a, b, c = contact_planes(feet - body[:, None, :], contact).T
     return -c + foot_radius * np.sqrt(1.0 + a * a + b * b)
+
+
+def feet_on_ground(terrain: Terrain, feet: np.ndarray, foot_radius: float) -> np.ndarray:
+    """(N, 6) whether each foot's sphere (centres (N, 6, 3)) lies within GROUND_TOLERANCE of the terrain."""
+    distance, _ = terrain.closest(feet.reshape(-1, 3))
+    return (distance - foot_radius <= GROUND_TOLERANCE).reshape(feet.shape[:2])
 
 
 def carried_forward(values: np.ndarray, before: float) -> np.ndarray:

@@ -31,14 +31,12 @@ from testbed.runtime.metrics import RunMetrics
 from testbed.runtime.recording import NullRecorder, Recorder, Tick
 from testbed.world.simulation import FALL_TILT, Simulation
 from testbed.world.records import raw
-from testbed.world.stability import (resting_feet, stance_support, stance_support_on_terrain, support_record,
-                                     support_view)
+from testbed.world.stability import (CONTACT_DEBOUNCE, GROUND_TOLERANCE, resting_feet, stance_support,
+                                     stance_support_on_terrain, support_record, support_view)
 from testbed.world.terrain import TERRAIN_STREAM, Terrain, make_terrain
 
 FALL_CHECK_PERIOD = 10   # physics steps between ground-touch checks of the body
 GC_ALLOCATIONS = 20_000  # container objects made between two collections of the youngest generation in a run
-CONTACT_DEBOUNCE = 0.005  # s: a foot that touched the ground this recently still supports
-GROUND_TOLERANCE = 0.001  # m: a stance foot this close to the ground still supports
 ARRIVAL_SETTLE = 2.0      # s a run with gait.end_at_arrival goes on after the controller arrived: the body comes to rest
 
 
@@ -275,7 +273,7 @@ def run(config, recorder: Recorder | None = None, truth_attitude: bool = False,
     sim, sensors = parts.sim, parts.sensors
     onboard = Onboard(parts)
     pilot = parts.controller if onboard.builtin else None
-    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, features=sim.terrain.features())
+    metrics = RunMetrics(config, weight=sim.mass * config.run.gravity, terrain=sim.terrain)
     support = SupportTracker(sim.terrain, config.robot.foot_radius)
     steps = int(round(config.run.duration / config.run.time_step))
     footprint = sim.terrain.footprint()

@@ -282,7 +282,7 @@ def markdown(result: LocoResult, image_folder: str, csv_path: str = "locomotion.
     full_s = None if result.loco_set.full else estimated_full_wall_s(result.results, result.workers)
     parts = [
         f"{set_description(result)} Every run: the EKF as the only attitude source and the posture controller; "
-        f"true tilt (from vertical) and height error (true body height above the plane of the feet in contact, "
+        f"true tilt (from vertical) and height error (true body height above the plane of the feet on the ground, their spheres within 1 mm of it, "
         f"under the body centre, minus the 0.10 m stance height: not above the terrain under the centre, which "
         f"jumps at every step edge and rough block, docs/control.md) after the start-up, from each run's metrics "
         f"JSON. Course runs walk to a target "

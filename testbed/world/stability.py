@@ -17,6 +17,8 @@ from testbed.world.records import one_record, raw, the_record
 from testbed.world.terrain import BOX, CANDIDATE_RULE, candidates_by_rule, closest_distance
 
 LEGS = 6
+CONTACT_DEBOUNCE = 0.005  # s: a foot that touched the ground this recently still supports
+GROUND_TOLERANCE = 0.001  # m: a stance foot this close to the ground still supports
 # The support tracker's settings and its memory: `debounce` s a touch keeps counting, `foot_radius`
 # m, `ground_tolerance` m a stance foot may float above the ground and still support, `last_touch`
 # each foot's latest touch time (s, updated in place).

@@ -193,3 +193,41 @@ def test_crossing_tilts_count_the_posture_benchmark_s_window_whatever_the_blocks
             crossings.add(t[rows], tilt[rows], feet_x[rows])
         assert crossings.metrics() == {"edge_tilt_max_deg": 1.7, "rough_tilt_max_deg": 2.5}
     assert CrossingTilts([]).metrics() == {"edge_tilt_max_deg": None, "rough_tilt_max_deg": None}
+
+
+def test_the_height_metric_stands_the_body_on_the_feet_resting_on_the_ground_whatever_the_contact_model():
+    """Feet on both levels of a 5 cm step: those whose sphere rests within GROUND_TOLERANCE of the
+    ground carry the plane, whatever a contact model's flags say (DART's chatter on loaded feet);
+    a foot lifted 3 mm does not. Fed in blocks, the height error RMS is the plane's."""
+    from testbed.runtime.metrics import PostureSums, carried_forward, feet_on_ground, support_plane_heights
+    from testbed.world.stability import GROUND_TOLERANCE
+    from testbed.world.terrain import make_terrain
+    config = config_module.load(None, {"run": {"terrain": "step"},
+                                       "terrain": {"step_height": 0.05, "step_edge_x": 0.0}})
+    terrain = make_terrain("step", config, np.random.default_rng(0))
+    radius = config.robot.foot_radius
+    rng = np.random.default_rng(8)
+    steps = 3000
+    t = config.startup_time + 1.0 + np.arange(steps) * 1e-3
+    xy = np.array([[0.15, 0.12], [0.16, 0.0], [0.15, -0.12], [-0.15, 0.12], [-0.14, 0.0], [-0.15, -0.12]])
+    ground = np.where(xy[:, 0] > 0.0, 0.05, 0.0) + terrain.height(np.array([[-1.0, 0.0]]))[0]
+    gap = rng.uniform(0.0, 0.9 * GROUND_TOLERANCE, (steps, 6))
+    lifted = rng.integers(0, 6, steps)
+    gap[np.arange(steps) % 3 == 0, lifted[np.arange(steps) % 3 == 0]] = 0.003
+    feet = np.empty((steps, 6, 3))
+    feet[:, :, :2] = xy
+    feet[:, :, 2] = ground + radius + gap
+    body = np.column_stack([rng.uniform(-0.01, 0.01, (steps, 2)), 0.15 + rng.uniform(-0.004, 0.004, steps)])
+    on_ground = gap <= GROUND_TOLERANCE
+    np.testing.assert_array_equal(feet_on_ground(terrain, feet, radius), on_ground)
+    assert on_ground.sum(axis=1).min() == 5
+    sums = PostureSums(config, terrain)
+    quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (steps, 1))
+    for start in range(0, steps, 700):
+        rows = slice(start, start + 700)
+        sums.add(t[rows], quaternions[rows], body[rows], feet[rows])
+    expected = carried_forward(support_plane_heights(body, feet, on_ground, radius), math.nan) - config.robot.stance_height
+    assert sums.metrics()["height_error_rms_m"] == pytest.approx(math.sqrt(np.mean(expected ** 2)), rel=1e-9)
+    # the plane through the resting feet lies between the levels, under the body's centre
+    plane_height = support_plane_heights(body, feet, on_ground, radius)
+    assert np.all((plane_height > body[:, 2] - ground.max() - 0.002) & (plane_height < body[:, 2] - ground.min() + 0.002))
