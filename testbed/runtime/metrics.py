@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from estimators.scoring import METRIC_KEYS, StreamingScore, contact_planes
 from testbed.runtime.config import Config
 from testbed.runtime.recording import Tick
-from testbed.world.stability import GROUND_TOLERANCE
+from testbed.world.stability import feet_on_ground
 from testbed.world.terrain.base import EDGE, ROUGH_PATCH, Terrain, TerrainFeature
 
 WEIGHT_WINDOW = 1.0   # s, weight_support_ratio averages over the last second of the run
@@ -127,9 +127,10 @@ class PostureSums:
     the feet on the ground (`support_plane_heights`), under the body centre. Not the terrain under
     the body centre: that jumps by a step's height when the centre passes over its edge, and by
     a block's on rough ground, while no body standing on its legs can (docs/control.md). A foot is
-    on the ground when its sphere lies within GROUND_TOLERANCE of the terrain (`feet_on_ground`),
-    whatever the contact model: DART's rigid contact reports loaded, resting feet out of contact
-    for 4-50 ms at a time, and each such gap would fit the plane through another set of feet."""
+    on the ground when its sphere lies within GROUND_TOLERANCE of the terrain (`feet_on_ground`,
+    the support polygon's rule), whatever the contact model: DART's rigid contact reports loaded,
+    resting feet out of contact for 4-50 ms at a time, and each such gap would fit the plane
+    through another set of feet."""
 
     def __init__(self, config: Config, terrain: Terrain):
         self.stance_height = config.robot.stance_height
@@ -221,12 +222,6 @@ def support_plane_heights(body: np.ndarray, feet: np.ndarray, contact: np.ndarra
     `estimators.scoring.contact_planes`); NaN where that gives no plane."""
     a, b, c = contact_planes(feet - body[:, None, :], contact).T
     return -c + foot_radius * np.sqrt(1.0 + a * a + b * b)
-
-
-def feet_on_ground(terrain: Terrain, feet: np.ndarray, foot_radius: float) -> np.ndarray:
-    """(N, 6) whether each foot's sphere (centres (N, 6, 3)) lies within GROUND_TOLERANCE of the terrain."""
-    distance, _ = terrain.closest(feet.reshape(-1, 3))
-    return (distance - foot_radius <= GROUND_TOLERANCE).reshape(feet.shape[:2])
 
 
 def carried_forward(values: np.ndarray, before: float) -> np.ndarray:

@@ -90,6 +90,14 @@ def _distance_to_segments(point: np.ndarray, starts: np.ndarray, ends: np.ndarra
     return np.sqrt(np.sum((point - (starts + fraction[:, None] * along)) ** 2, axis=1))
 
 
+def feet_on_ground(terrain, feet: np.ndarray, foot_radius: float) -> np.ndarray:
+    """Whether each foot's sphere (centres (..., 3)) lies within GROUND_TOLERANCE of the terrain
+    (a `Terrain`): the feet that rest on the ground whatever a contact model's flags say.
+    `resting_feet` is the same rule per step, compiled."""
+    distance, _ = terrain.closest(feet.reshape(-1, 3))
+    return (distance - foot_radius <= GROUND_TOLERANCE).reshape(feet.shape[:-1])
+
+
 # ---------------------------------------------------------------- per step, compiled
 @njit(cache=True)
 def stance_support(support_raw, t, contact, swinging, feet, com, resting):

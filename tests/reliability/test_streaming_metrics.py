@@ -199,8 +199,8 @@ def test_the_height_metric_stands_the_body_on_the_feet_resting_on_the_ground_wha
     """Feet on both levels of a 5 cm step: those whose sphere rests within GROUND_TOLERANCE of the
     ground carry the plane, whatever a contact model's flags say (DART's chatter on loaded feet);
     a foot lifted 3 mm does not. Fed in blocks, the height error RMS is the plane's."""
-    from testbed.runtime.metrics import PostureSums, carried_forward, feet_on_ground, support_plane_heights
-    from testbed.world.stability import GROUND_TOLERANCE
+    from testbed.runtime.metrics import PostureSums, carried_forward, support_plane_heights
+    from testbed.world.stability import GROUND_TOLERANCE, feet_on_ground
     from testbed.world.terrain import make_terrain
     config = config_module.load(None, {"run": {"terrain": "step"},
                                        "terrain": {"step_height": 0.05, "step_edge_x": 0.0}})

@@ -6,7 +6,8 @@ import pytest
 from testbed.runtime import config
 from testbed.model.kinematics import LegGeometry, inverse_kinematics_all, nominal_stance
 from testbed.control.odometry import GyroHeading, LegOdometry
-from testbed.world.stability import stability_margin, stance_support, support_polygon, support_record, support_view
+from testbed.world.stability import (feet_on_ground, stability_margin, stance_support, support_polygon, support_record,
+                                     support_view)
 
 CFG = config.load()
 GEOM = LegGeometry.from_config(CFG.robot)
@@ -287,7 +288,7 @@ def test_support_on_terrain_in_one_call_agrees_with_the_readable_path(name):
             asked += 1
             late = (late_bits >> np.arange(6)) & 1 == 1
             resting = np.zeros(6, dtype=bool)
-            resting[late] = terrain.closest(feet[late])[0] - radius <= GROUND_TOLERANCE
+            resting[late] = feet_on_ground(terrain, feet[late], radius)
             expected, expected_margin, _ = stance_support(*args, resting)
         own_polygon, own_margin = own.polygon_and_margin(truth, swinging)
         for ours in ((polygon, margin), (own_polygon, own_margin)):
